@@ -1,0 +1,30 @@
+# Set-up and the two commands the README promises.
+#   make demo   - create .venv (CPU torch from the local wheel) and run `mamma-kit demo`
+#   make test   - create .venv if needed and run the test suite
+PY ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+# The CPU wheel of torch 2.13.0 lies on this machine's disk; any other request pulls a CUDA build.
+TORCH_SPEC ?= torch==2.13.0
+DEMO_OUT ?= demo-out
+
+.PHONY: env demo test clean
+
+env: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q "$(TORCH_SPEC)"
+	$(BIN)/python -m pip install -q -e ".[test,smplx]"
+	$(BIN)/python -c "import torch; print('torch', torch.__version__)"
+	touch $@
+
+demo: env
+	$(BIN)/mamma-kit demo --out $(DEMO_OUT)
+
+test: env
+	$(BIN)/python -m pytest
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

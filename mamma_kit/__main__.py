@@ -1,0 +1,3 @@
+from mamma_kit.cli.app import main
+
+main()

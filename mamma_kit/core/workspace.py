@@ -1,0 +1,181 @@
+"""A capture workspace: one folder that every command reads and writes (DESIGN.md s.1).
+
+::
+
+    <workspace>/
+      capture.toml          cameras -> video files, sequence range, body model, settings
+      calibration.toml      timing.toml        identities.json
+      masks/<cam>.npz       landmarks/<cam>.npz  smplx/person_<k>.npz
+      report/               .cache/ (stage manifests)    gt/ (synthetic only)
+
+capture.toml::
+
+    [capture]
+    name = "my-dance"
+    body_model = "open"                # or a path to SMPLX_NEUTRAL.npz
+    [board]
+    spec = "charuco.toml"              # board spec used for the board videos (optional)
+    [cameras.cam0]
+    video = "videos/cam0.mp4"
+    board_video = "board/cam0.mp4"     # optional
+    [sequence]                         # optional reference-time range (s)
+    start_s = 0.0
+    end_s = 12.0
+    [settings.sync]                    # optional per-stage settings
+    method = "auto"
+
+Paths in capture.toml are resolved against the workspace and may not escape it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.io import read_toml, write_toml
+
+STAGES = ("calibrate", "sync", "track", "landmarks", "match", "fit", "report")
+
+
+@dataclass
+class CameraEntry:
+    name: str
+    video: Path
+    board_video: Path | None = None
+
+
+@dataclass
+class CaptureConfig:
+    name: str
+    cameras: dict[str, CameraEntry]
+    body_model: str = "open"
+    board_spec: Path | None = None
+    start_s: float | None = None
+    end_s: float | None = None
+    settings: dict[str, Any] = field(default_factory=dict)
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def camera_names(self) -> list[str]:
+        return list(self.cameras)
+
+    def stage_settings(self, stage: str) -> dict[str, Any]:
+        return dict(self.settings.get(stage, {}))
+
+
+class Workspace:
+    """Paths of a capture workspace, plus loading of its capture.toml."""
+
+    def __init__(self, root: str | Path, must_exist: bool = True):
+        self.root = Path(root).resolve()
+        if must_exist and not self.root.is_dir():
+            raise UserError(f"workspace not found: {root}",
+                            "pass the capture folder, or create one with `mamma-kit init` or `mamma-kit synth`")
+
+    # ---- fixed paths ----------------------------------------------------------------
+    @property
+    def capture_toml(self) -> Path:
+        return self.root / "capture.toml"
+
+    @property
+    def calibration(self) -> Path:
+        return self.root / "calibration.toml"
+
+    @property
+    def timing(self) -> Path:
+        return self.root / "timing.toml"
+
+    @property
+    def masks_dir(self) -> Path:
+        return self.root / "masks"
+
+    @property
+    def landmarks_dir(self) -> Path:
+        return self.root / "landmarks"
+
+    @property
+    def identities(self) -> Path:
+        return self.root / "identities.json"
+
+    @property
+    def smplx_dir(self) -> Path:
+        return self.root / "smplx"
+
+    @property
+    def report_dir(self) -> Path:
+        return self.root / "report"
+
+    @property
+    def cache_dir(self) -> Path:
+        return self.root / ".cache"
+
+    @property
+    def gt_dir(self) -> Path:
+        return self.root / "gt"
+
+    def mask_file(self, cam: str) -> Path:
+        return self.masks_dir / f"{cam}.npz"
+
+    def landmarks_file(self, cam: str) -> Path:
+        return self.landmarks_dir / f"{cam}.npz"
+
+    def person_file(self, k: int) -> Path:
+        return self.smplx_dir / f"person_{k}.npz"
+
+    def person_files(self) -> list[Path]:
+        return sorted(self.smplx_dir.glob("person_*.npz"), key=lambda p: int(p.stem.split("_")[1]))
+
+    @property
+    def is_synthetic(self) -> bool:
+        return self.gt_dir.is_dir()
+
+    # ---- paths from config ----------------------------------------------------------
+    def resolve(self, rel: str | Path, what: str = "path") -> Path:
+        """Resolve a path from capture.toml against the workspace; refuse escapes."""
+        p = Path(rel)
+        full = (self.root / p).resolve() if not p.is_absolute() else p.resolve()
+        if full != self.root and self.root not in full.parents:
+            raise UserError(f"capture.toml {what} '{rel}' points outside the workspace {self.root}",
+                            "move the file into the workspace (or link it) and use a relative path")
+        return full
+
+    def relative(self, path: Path) -> str:
+        path = Path(path).resolve()
+        try:
+            return str(path.relative_to(self.root))
+        except ValueError:
+            return str(path)
+
+    # ---- capture.toml ---------------------------------------------------------------
+    def load_capture(self) -> CaptureConfig:
+        if not self.capture_toml.is_file():
+            raise UserError(f"{self.root} has no capture.toml",
+                            "create one with `mamma-kit init WORKSPACE --videos ...`")
+        data = read_toml(self.capture_toml, "capture.toml")
+        cams = data.get("cameras")
+        if not isinstance(cams, dict) or not cams:
+            raise UserError("capture.toml lists no cameras", "add [cameras.NAME] tables with video = \"...\"")
+        entries = {}
+        for name, d in cams.items():
+            if not isinstance(d, dict) or "video" not in d:
+                raise UserError(f"capture.toml: camera {name} has no 'video'", "add video = \"videos/NAME.mp4\"")
+            bv = d.get("board_video")
+            entries[name] = CameraEntry(name, self.resolve(d["video"], f"video of {name}"),
+                                        self.resolve(bv, f"board video of {name}") if bv else None)
+        cap = data.get("capture", {})
+        seq = data.get("sequence", {})
+        board = data.get("board", {})
+        spec = board.get("spec")
+        return CaptureConfig(
+            name=str(cap.get("name", self.root.name)),
+            cameras=entries,
+            body_model=str(cap.get("body_model", "open")),
+            board_spec=self.resolve(spec, "board spec") if spec else None,
+            start_s=seq.get("start_s"), end_s=seq.get("end_s"),
+            settings=dict(data.get("settings", {})), raw=data,
+        )
+
+    def write_capture(self, data: dict) -> Path:
+        return write_toml(self.capture_toml, data)

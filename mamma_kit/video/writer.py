@@ -1,0 +1,161 @@
+"""Writing H.264 video with exact (variable) timestamps, AAC or PCM audio and a timecode.
+
+Used by the synthetic renderer (so test captures are real phone-like files) and by the
+report's overlay videos. The file appears atomically when the writer is closed.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import numpy as np
+
+import os
+
+from mamma_kit.core.io import temp_beside
+
+# 90 kHz is the MPEG/QuickTime video clock; every timestamp is stored as an integer tick.
+VIDEO_TIME_BASE = Fraction(1, 90000)
+
+
+class VideoWriter:
+    """Write frames at given timestamps, plus optional audio and tmcd timecode.
+
+    >>> with VideoWriter("cam0.mp4", 640, 480, fps=30, audio_rate=48000) as w:
+    ...     w.write_frame(rgb_hw3, t=0.0)
+    ...     w.write_audio(samples_nc, start_s=0.0)
+
+    Timestamps are rounded to 1/90000 s. ``audio_codec`` is "aac" (phones) or
+    "pcm_s16le" (needs a .mov container). ``timecode`` 'HH:MM:SS:FF' writes a tmcd track.
+    """
+
+    def __init__(self, path: str | Path, width: int, height: int, fps: float = 30.0,
+                 crf: int = 18, preset: str = "veryfast", audio_rate: int | None = None,
+                 audio_channels: int = 1, audio_codec: str = "aac", timecode: str | None = None,
+                 rotation_deg: int = 0, gop: int | None = None):
+        self.path = Path(path)
+        self._tmp = temp_beside(self.path)
+        tmp = self._tmp
+        self.container = av.open(str(tmp), "w", format=_format_for(self.path))
+        fps_frac = Fraction(fps).limit_denominator(1001)
+        vs = self.container.add_stream("libx264", rate=fps_frac)
+        vs.width, vs.height = int(width), int(height)
+        vs.pix_fmt = "yuv420p"
+        vs.time_base = VIDEO_TIME_BASE
+        vs.codec_context.time_base = VIDEO_TIME_BASE
+        opts = {"crf": str(crf), "preset": preset, "bf": "0"}
+        if gop:
+            opts["g"] = str(gop)
+        vs.options = opts
+        if timecode:
+            vs.metadata["timecode"] = timecode
+        if rotation_deg:
+            vs.set_display_rotation(float(rotation_deg))
+        self.vs = vs
+        self.as_ = None
+        self.audio_rate = audio_rate
+        self.audio_channels = audio_channels
+        if audio_rate:
+            layout = {1: "mono", 2: "stereo"}.get(audio_channels, f"{audio_channels}c")
+            codec = audio_codec
+            a = self.container.add_stream(codec, rate=int(audio_rate))
+            a.layout = layout
+            if codec == "aac":
+                a.bit_rate = 192000 * audio_channels
+            a.time_base = Fraction(1, int(audio_rate))
+            self.as_ = a
+            self._audio_fmt = "s16" if codec.startswith("pcm_s16") else ("fltp" if codec == "aac" else "flt")
+        self._last_pts = -1
+        self._audio_next = None
+        self._closed = False
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        self.close(ok=exc_type is None)
+
+    def write_frame(self, rgb_hw3: np.ndarray, t: float) -> None:
+        """Encode one RGB uint8 frame at presentation time ``t`` seconds (strictly increasing)."""
+        pts = int(round(t / VIDEO_TIME_BASE))
+        if pts <= self._last_pts:
+            raise ValueError(f"timestamps must increase: {t} after {self._last_pts * VIDEO_TIME_BASE}")
+        self._last_pts = pts
+        fr = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb_hw3, np.uint8), format="rgb24")
+        fr.pts = pts
+        fr.time_base = VIDEO_TIME_BASE
+        for p in self.vs.encode(fr):
+            self.container.mux(p)
+
+    def write_audio(self, samples_nc: np.ndarray, start_s: float | None = None, block: int = 1024) -> None:
+        """Append audio samples (N,) or (N, C) float in [-1, 1]; ``start_s`` places the first one."""
+        if self.as_ is None:
+            raise ValueError("writer was created without audio_rate")
+        x = np.asarray(samples_nc, np.float32)
+        if x.ndim == 1:
+            x = x[:, None]
+        if x.shape[1] != self.audio_channels:
+            raise ValueError(f"expected {self.audio_channels} channels, got {x.shape[1]}")
+        if start_s is not None:
+            pos = int(round(start_s * self.audio_rate))
+            if pos < 0:  # samples before the container origin are dropped
+                x = x[-pos:]
+                pos = 0
+            self._audio_next = pos
+        elif self._audio_next is None:
+            self._audio_next = 0
+        x = np.clip(x, -1, 1)
+        for k in range(0, len(x), block):
+            chunk = x[k:k + block]
+            if self._audio_fmt == "s16":
+                arr = (chunk * 32767).round().astype(np.int16).reshape(1, -1)
+            elif self._audio_fmt == "fltp":
+                arr = np.ascontiguousarray(chunk.T)
+            else:
+                arr = np.ascontiguousarray(chunk.reshape(1, -1))
+            fr = av.AudioFrame.from_ndarray(arr, format=self._audio_fmt, layout=self.as_.layout.name)
+            fr.sample_rate = self.audio_rate
+            fr.pts = self._audio_next
+            fr.time_base = Fraction(1, self.audio_rate)
+            self._audio_next += len(chunk)
+            for p in self.as_.encode(fr):
+                self.container.mux(p)
+
+    def close(self, ok: bool = True) -> None:
+        """Flush the encoders and move the file into place (or discard it if not ``ok``)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if ok:
+                for p in self.vs.encode():
+                    self.container.mux(p)
+                if self.as_ is not None:
+                    for p in self.as_.encode():
+                        self.container.mux(p)
+            self.container.close()
+            if ok:
+                os.replace(self._tmp, self.path)
+        finally:
+            if self._tmp.exists():
+                self._tmp.unlink()
+
+
+def _format_for(path: Path) -> str:
+    ext = path.suffix.lower()
+    return {".mov": "mov", ".mp4": "mp4", ".m4v": "mp4", ".mkv": "matroska"}.get(ext, "mp4")
+
+
+def write_video(path: str | Path, frames_thw3, timestamps, fps: float | None = None, **kw) -> Path:
+    """Write a whole clip at once (convenience over :class:`VideoWriter`)."""
+    frames = list(frames_thw3) if not isinstance(frames_thw3, np.ndarray) else frames_thw3
+    ts = np.asarray(timestamps, float)
+    if fps is None:
+        fps = 1.0 / np.median(np.diff(ts)) if len(ts) > 1 else 30.0
+    h, w = frames[0].shape[:2]
+    with VideoWriter(path, w, h, fps=fps, **kw) as wr:
+        for img, t in zip(frames, ts):
+            wr.write_frame(img, float(t))
+    return Path(path)

@@ -1,0 +1,62 @@
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mamma_kit.core.camera import Camera, Rig, rodrigues
+
+
+class CliResult:
+    def __init__(self, code: int, out: str, err: str):
+        self.code, self.out, self.err = code, out, err
+
+    def __repr__(self) -> str:
+        return f"CliResult(code={self.code}, out={self.out[-500:]!r}, err={self.err[-500:]!r})"
+
+
+@pytest.fixture
+def cli(capsys):
+    """Run `mamma-kit ARGS` in-process; return exit code, stdout, stderr."""
+    from mamma_kit.cli.app import main
+
+    def run(*args: str) -> CliResult:
+        capsys.readouterr()
+        code = 0
+        try:
+            main([str(a) for a in args])
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+        cap = capsys.readouterr()
+        return CliResult(code, cap.out, cap.err)
+
+    return run
+
+
+def make_ring_rig(n: int = 4, radius: float = 4.5, height: float = 1.6, size=(640, 480), f: float = 600.0,
+                  dist=None, model: str = "radtan", seed: int = 0) -> Rig:
+    """Cameras on a ring looking at (0, 0, 1) with world Z up."""
+    rng = np.random.default_rng(seed)
+    cams = []
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        C = np.array([radius * np.cos(a), radius * np.sin(a), height])
+        target = np.array([0, 0, 1.0])
+        z = target - C
+        z /= np.linalg.norm(z)
+        x = np.cross(z, [0, 0, 1.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        R = np.stack([x, y, z])
+        K = np.array([[f * (1 + 0.01 * rng.standard_normal()), 0, size[0] / 2 - 0.5 + rng.uniform(-5, 5)],
+                      [0, f, size[1] / 2 - 0.5 + rng.uniform(-5, 5)], [0, 0, 1]])
+        d = np.zeros(5) if dist is None else np.asarray(dist, float)
+        cams.append(Camera(f"cam{i}", size, K, d, model, R, -R @ C))
+    return Rig(cams)
+
+
+@pytest.fixture
+def ring_rig() -> Rig:
+    return make_ring_rig()
