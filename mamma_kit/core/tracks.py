@@ -1,0 +1,198 @@
+"""Per-view person tracks: masks/<cam>.npz and landmarks/<cam>.npz.
+
+Both files index frames by the camera's own frame timestamps (``frame_times``, float64 s,
+container time) and people by per-view ``track_ids`` (K,). Ground truth in synthetic
+workspaces uses the same files under gt/, with track id = person id.
+
+masks/<cam>.npz
+    image_size (2,) [W, H]; frame_times (T,); track_ids (K,);
+    boxes (T, K, 4) float32 x1, y1, x2, y2 (NaN where the track is absent);
+    scores (T, K) float32 (0 where absent);
+    rle_counts (N,) uint32 and rle_index (T, K, 2) int64 [start, length] into rle_counts:
+    the mask flattened row-major, as alternating run lengths starting with a run of 0s
+    (length 0 = no mask).
+
+landmarks/<cam>.npz  (L = 512)
+    image_size, frame_times, track_ids as above; valid (T, K) bool;
+    xy (T, K, L, 2) px; sigma (T, K, L, 2) px per axis; visibility, contact,
+    floor_contact (T, K, L) probabilities in [0, 1]; landmark_set (str); source (str).
+
+Every file also holds ``producer`` (JSON string: tool, version, command, input hashes).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.io import read_npz, write_npz
+
+
+# ---- run-length encoding ---------------------------------------------------------------
+def rle_encode(mask_hw: np.ndarray) -> np.ndarray:
+    """Boolean mask (H, W) -> run lengths (uint32) of the row-major flattening, 0-run first."""
+    flat = np.asarray(mask_hw, bool).reshape(-1)
+    if flat.size == 0:
+        return np.zeros(0, np.uint32)
+    change = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    bounds = np.r_[0, change, flat.size]
+    runs = np.diff(bounds)
+    if flat[0]:
+        runs = np.r_[0, runs]
+    return runs.astype(np.uint32)
+
+
+def rle_decode(counts: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
+    """Run lengths -> boolean mask (H, W)."""
+    w, h = int(size_wh[0]), int(size_wh[1])
+    counts = np.asarray(counts, np.int64)
+    if counts.sum() != w * h:
+        raise ValueError(f"RLE covers {counts.sum()} pixels, image has {w * h}")
+    values = np.zeros(len(counts), bool)
+    values[1::2] = True
+    return np.repeat(values, counts).reshape(h, w)
+
+
+def rle_area(counts: np.ndarray) -> int:
+    return int(np.asarray(counts, np.int64)[1::2].sum())
+
+
+def _producer_str(producer: dict | None) -> np.ndarray:
+    return np.array(json.dumps(producer or {}))
+
+
+# ---- masks ------------------------------------------------------------------------------
+@dataclass
+class MaskTracks:
+    camera: str
+    image_size: tuple[int, int]
+    frame_times: np.ndarray  # (T,) float64
+    track_ids: np.ndarray  # (K,) int64
+    boxes: np.ndarray  # (T, K, 4) float32
+    scores: np.ndarray  # (T, K) float32
+    rle_counts: np.ndarray  # (N,) uint32
+    rle_index: np.ndarray  # (T, K, 2) int64
+    producer: dict = field(default_factory=dict)
+
+    @property
+    def present(self) -> np.ndarray:
+        """(T, K) bool: the track has a mask in that frame."""
+        return self.rle_index[..., 1] > 0
+
+    def track_column(self, track_id: int) -> int:
+        hits = np.flatnonzero(self.track_ids == track_id)
+        if not len(hits):
+            raise KeyError(f"track {track_id} not in {self.camera}")
+        return int(hits[0])
+
+    def mask(self, t: int, k: int) -> np.ndarray | None:
+        """Boolean mask (H, W) of column k at frame t, or None if absent."""
+        start, n = self.rle_index[t, k]
+        if n == 0:
+            return None
+        return rle_decode(self.rle_counts[start:start + n], self.image_size)
+
+    def area(self, t: int, k: int) -> int:
+        start, n = self.rle_index[t, k]
+        return rle_area(self.rle_counts[start:start + n]) if n else 0
+
+    @classmethod
+    def from_masks(cls, camera: str, image_size: tuple[int, int], frame_times: np.ndarray,
+                   track_ids: np.ndarray, masks: dict[tuple[int, int], np.ndarray],
+                   scores: dict[tuple[int, int], float] | None = None, producer: dict | None = None) -> "MaskTracks":
+        """Build from {(frame index, column): bool mask (H, W)}; boxes come from the masks."""
+        T, K = len(frame_times), len(track_ids)
+        boxes = np.full((T, K, 4), np.nan, np.float32)
+        sc = np.zeros((T, K), np.float32)
+        index = np.zeros((T, K, 2), np.int64)
+        chunks, n = [], 0
+        for (t, k) in sorted(masks):
+            m = masks[(t, k)]
+            if m is None or not m.any():
+                continue
+            counts = rle_encode(m)
+            index[t, k] = (n, len(counts))
+            chunks.append(counts)
+            n += len(counts)
+            ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
+            boxes[t, k] = (xs[0], ys[0], xs[-1] + 1, ys[-1] + 1)
+            sc[t, k] = 1.0 if scores is None else scores.get((t, k), 1.0)
+        counts_all = np.concatenate(chunks).astype(np.uint32) if chunks else np.zeros(0, np.uint32)
+        return cls(camera, (int(image_size[0]), int(image_size[1])), np.asarray(frame_times, np.float64),
+                   np.asarray(track_ids, np.int64), boxes, sc, counts_all, index, producer or {})
+
+    def save(self, path: str | Path) -> Path:
+        return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
+                         frame_times=self.frame_times, track_ids=self.track_ids, boxes=self.boxes,
+                         scores=self.scores, rle_counts=self.rle_counts, rle_index=self.rle_index,
+                         producer=_producer_str(self.producer))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "MaskTracks":
+        d = read_npz(path, "mask file")
+        _require(d, path, ("image_size", "frame_times", "track_ids", "boxes", "scores", "rle_counts", "rle_index"))
+        return cls(str(d.get("camera", Path(path).stem)), tuple(int(v) for v in d["image_size"]),
+                   d["frame_times"], d["track_ids"], d["boxes"], d["scores"], d["rle_counts"], d["rle_index"],
+                   json.loads(str(d.get("producer", "{}"))))
+
+
+# ---- landmarks --------------------------------------------------------------------------
+@dataclass
+class LandmarkTracks:
+    camera: str
+    image_size: tuple[int, int]
+    frame_times: np.ndarray  # (T,)
+    track_ids: np.ndarray  # (K,)
+    valid: np.ndarray  # (T, K) bool
+    xy: np.ndarray  # (T, K, L, 2) px
+    sigma: np.ndarray  # (T, K, L, 2) px
+    visibility: np.ndarray  # (T, K, L)
+    contact: np.ndarray  # (T, K, L)
+    floor_contact: np.ndarray  # (T, K, L)
+    landmark_set: str = ""
+    source: str = ""
+    producer: dict = field(default_factory=dict)
+
+    @property
+    def n_landmarks(self) -> int:
+        return self.xy.shape[2]
+
+    @classmethod
+    def empty(cls, camera: str, image_size, frame_times, track_ids, n_landmarks: int = 512,
+              landmark_set: str = "", source: str = "") -> "LandmarkTracks":
+        T, K, L = len(frame_times), len(track_ids), n_landmarks
+        nan2 = np.full((T, K, L, 2), np.nan, np.float32)
+        return cls(camera, (int(image_size[0]), int(image_size[1])), np.asarray(frame_times, np.float64),
+                   np.asarray(track_ids, np.int64), np.zeros((T, K), bool), nan2, nan2.copy(),
+                   np.zeros((T, K, L), np.float32), np.zeros((T, K, L), np.float32),
+                   np.zeros((T, K, L), np.float32), landmark_set, source)
+
+    def save(self, path: str | Path) -> Path:
+        return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
+                         frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,
+                         xy=self.xy.astype(np.float32), sigma=self.sigma.astype(np.float32),
+                         visibility=self.visibility.astype(np.float32), contact=self.contact.astype(np.float32),
+                         floor_contact=self.floor_contact.astype(np.float32),
+                         landmark_set=np.array(self.landmark_set), source=np.array(self.source),
+                         producer=_producer_str(self.producer))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "LandmarkTracks":
+        d = read_npz(path, "landmark file")
+        _require(d, path, ("image_size", "frame_times", "track_ids", "valid", "xy", "sigma", "visibility",
+                           "contact", "floor_contact"))
+        return cls(str(d.get("camera", Path(path).stem)), tuple(int(v) for v in d["image_size"]),
+                   d["frame_times"], d["track_ids"], d["valid"].astype(bool), d["xy"], d["sigma"],
+                   d["visibility"], d["contact"], d["floor_contact"], str(d.get("landmark_set", "")),
+                   str(d.get("source", "")), json.loads(str(d.get("producer", "{}"))))
+
+
+def _require(d: dict, path, keys) -> None:
+    missing = [k for k in keys if k not in d]
+    if missing:
+        raise UserError(f"{Path(path).name} is missing {', '.join(missing)} (not a mamma-kit file or too old)",
+                        "run the stage that writes it again")
