@@ -51,7 +51,7 @@ class Timecode:
         return f"{self.hours:02d}:{self.minutes:02d}:{self.seconds:02d}{sep}{self.frames:02d}"
 
 
-_TC = re.compile(r"^\s*(\d{1,2})[:;.](\d{2})[:;.](\d{2})([:;.])(\d{2})\s*$")
+_TC = re.compile(r"^\s*(\d{1,2})[:;.](\d{1,2})[:;.](\d{1,2})([:;.])(\d{1,3})\s*$")
 
 
 def parse_timecode(text: str) -> Timecode:

@@ -97,7 +97,8 @@ class LtcSpec:
     """An LTC generator running on the reference clock, recorded on one channel.
 
     Frame ``start_tc`` begins at reference time ``t_ref_start``; frames run at the true rate of
-    ``fps`` (23.976, 24, 25, 29.97, 30, 47.952, 48, 50, 59.94, 60). ``user_bits``: 32-bit value
+    ``fps`` (23.976, 24, 25, 29.97, 30, 47.952, 48, 50, 59.94, 60; above 30 fps one LTC word
+    carries a frame pair, SMPTE 12-1). ``user_bits``: 32-bit value
     repeated in every frame. ``shift_s``: per-camera generator error (a mis-jammed box).
     """
     fps: float = 25.0
@@ -217,12 +218,20 @@ def ltc_frame_bits(frame_count: int, fps: float, drop_frame: bool = False, user_
     return b
 
 
+def _word_rate(spec: LtcSpec):
+    """(LTC words per second, label of the first word): above 30 fps one word per frame pair."""
+    full = rate_fraction(spec.fps)
+    n_full = timecode_to_frames(parse_timecode(spec.start_tc) if isinstance(spec.start_tc, str)
+                                else spec.start_tc, full)
+    if full > 31:
+        return full / 2, n_full // 2
+    return full, n_full
+
+
 def ltc_transition_times(t0: float, t1: float, spec: LtcSpec) -> np.ndarray:
     """Reference times of every level transition of the LTC signal between t0 and t1."""
-    rate = rate_fraction(spec.fps)
+    rate, n_start = _word_rate(spec)
     fps = float(rate)
-    n_start = timecode_to_frames(parse_timecode(spec.start_tc) if isinstance(spec.start_tc, str)
-                                 else spec.start_tc, rate)
     k0 = int(np.floor((t0 - spec.t_ref_start) * fps)) - 1
     k1 = int(np.ceil((t1 - spec.t_ref_start) * fps)) + 1
     ks = np.arange(k0, k1 + 1)
@@ -320,11 +329,11 @@ def render_camera_audio(mics: Mapping[str, Microphone], claps: Sequence[Clap] = 
 
 
 def ltc_frame_starts(mic: Microphone, spec: LtcSpec, shift_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Ground truth of the LTC in one camera's recording: (frame counts (F,), camera times of
-    their starts (F,)) for every frame that starts and ends inside the audio."""
-    rate = rate_fraction(spec.fps)
+    """Ground truth of the LTC in one camera's recording: (word counts (F,), camera times of
+    their starts (F,)) for every LTC word that starts and ends inside the audio (above 30 fps a
+    word is a frame pair)."""
+    rate, n_start = _word_rate(spec)
     fps = float(rate)
-    n_start = timecode_to_frames(spec.start_tc, rate)
     t0 = float(mic.clock.to_ref(mic.audio_start_s))
     t1 = float(mic.clock.to_ref(mic.audio_start_s + mic.duration_s))
     k = np.arange(int(np.ceil((t0 - spec.t_ref_start - shift_s) * fps)),
@@ -335,3 +344,100 @@ def ltc_frame_starts(mic: Microphone, spec: LtcSpec, shift_s: float = 0.0) -> tu
 
 __all__ = ["SPEED_OF_SOUND", "Clap", "Microphone", "Reverb", "LtcSpec", "clap_waveform", "room_impulse_response",
            "ltc_frame_bits", "render_ltc", "arrival_times", "render_camera_audio", "ltc_frame_starts"]
+
+
+# ---------------------------------------------------------------------------------------
+# small phone-like capture workspaces for sync tests and benchmarks
+def write_sync_workspace(root, *, n_cameras: int = 3, duration_s: float = 20.0, fps: float = 10.0,
+                         size: tuple[int, int] = (64, 48), clap_times: Sequence[float] = (4.0, 15.0),
+                         clocks: Sequence[ClockModel] | None = None, audio_start_s: Sequence[float] | None = None,
+                         sample_rate: int | Sequence[int] = 48000, snr_db: float = 10.0,
+                         reverb: "str | Reverb | None" = "weak", ltc: LtcSpec | None = None,
+                         audio_codec: str = "aac", timecode: bool = False, radius: float = 4.5,
+                         clap_positions_known: bool = True, vfr_jitter: float = 0.2, seed: int = 0,
+                         audio: bool = True) -> dict:
+    """Write a capture workspace whose cameras hear claps (and LTC): videos/<cam>.mp4 (.mov for
+    PCM) with H.264 frames at each camera's clock (variable frame rate: each interval jittered
+    by +-vfr_jitter of a frame), the rendered audio (AAC by default), capture.toml,
+    calibration.toml (cameras on a ring looking at the centre; microphones at the camera
+    centres), gt/timing.toml (true clocks, reference = the scene clock) and, with
+    ``timecode``, a tmcd start timecode at the video rate (01:00:00:00 = reference time 0,
+    rounded to the first frame's nearest whole frame).
+    Claps are at reference times ``clap_times`` from random points near the centre; with
+    ``clap_positions_known`` they are written to capture.toml [settings.sync].
+    Returns {"mics", "claps", "clocks", "videos", "frame_times"}.
+    """
+    from pathlib import Path
+
+    from mamma_kit.core.calibfile import write_calibration
+    from mamma_kit.core.camera import Camera, Rig
+    from mamma_kit.core.io import write_toml
+    from mamma_kit.core.timecode import frames_to_timecode
+    from mamma_kit.core.timingfile import write_timing
+    from mamma_kit.video import VideoWriter
+
+    root = Path(root)
+    rng = np.random.default_rng(seed)
+    names = [f"cam{i}" for i in range(n_cameras)]
+    if clocks is None:
+        clocks = [ClockModel(float(rng.uniform(-1.5, 1.5)), float(rng.uniform(-150e-6, 150e-6))) for _ in names]
+    if audio_start_s is None:
+        audio_start_s = [float(rng.uniform(-0.03, 0.03)) for _ in names]
+    srs = [sample_rate] * n_cameras if np.isscalar(sample_rate) else list(sample_rate)
+    w, h = size
+    f = 0.9 * w
+    cams, mics = [], {}
+    for i, n in enumerate(names):
+        a = 2 * np.pi * i / n_cameras + 0.3
+        C = np.array([radius * np.cos(a), radius * np.sin(a), 1.6])
+        z = np.array([0, 0, 1.0]) - C
+        z /= np.linalg.norm(z)
+        x = np.cross(z, [0, 0, 1.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        R = np.stack([x, y, z])
+        cams.append(Camera(n, (w, h), np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1]]),
+                           np.zeros(5), "radtan", R, -R @ C))
+        mics[n] = Microphone(tuple(C), clocks[i], duration_s, audio_start_s[i])
+    claps = [Clap(float(t), tuple(rng.uniform([-1.0, -1.0, 1.0], [1.0, 1.0, 1.6]))) for t in clap_times]
+    rendered: dict = {}
+    if audio:
+        for sr in sorted(set(srs)):
+            sub = {n: mics[n] for n, s in zip(names, srs) if s == sr}
+            rendered.update(render_camera_audio(sub, claps, sample_rate=sr, snr_db=snr_db, reverb=reverb, ltc=ltc,
+                                                seed=seed + sr))
+    (root / "videos").mkdir(parents=True, exist_ok=True)
+    ext = ".mov" if audio_codec.startswith("pcm") else ".mp4"
+    videos, frame_times = {}, {}
+    for i, n in enumerate(names):
+        k = np.arange(int(duration_s * fps))
+        jit = rng.uniform(-vfr_jitter, vfr_jitter, len(k)) / fps
+        ts = np.round((k / fps + jit + 0.5 / fps) * 90000) / 90000  # on the 90 kHz clock
+        ts = np.maximum.accumulate(ts)
+        ts = ts[np.r_[True, np.diff(ts) > 0]]
+        tc = None
+        if timecode:
+            t0_ref = float(clocks[i].to_ref(ts[0]))
+            tc = str(frames_to_timecode(int(round((3600.0 + t0_ref) * fps)), fps))
+        path = root / "videos" / f"{n}{ext}"
+        kw = {}
+        if audio:
+            x, s0 = rendered[n]
+            kw = dict(audio_rate=srs[i], audio_channels=x.shape[1], audio_codec=audio_codec)
+        with VideoWriter(path, w, h, fps=fps, timecode=tc, **kw) as wr:
+            img = np.zeros((h, w, 3), np.uint8)
+            for j, t in enumerate(ts):
+                img[:] = (j * 5) % 256
+                wr.write_frame(img, float(t))
+            if audio:
+                wr.write_audio(x, start_s=s0)
+        videos[n], frame_times[n] = path, ts
+    cap = {"capture": {"name": "sync-test"}, "cameras": {n: {"video": f"videos/{videos[n].name}"} for n in names}}
+    if clap_positions_known:
+        cap["settings"] = {"sync": {"clap_positions": [list(c.position) for c in claps]}}
+    write_toml(root / "capture.toml", cap)
+    write_calibration(root / "calibration.toml", Rig(cams))
+    write_timing(root / "gt" / "timing.toml", {n: ClockModel(c.offset, c.rate, "gt", 1.0) for n, c in zip(names, clocks)},
+                 reference="scene", method="gt")
+    return {"mics": mics, "claps": claps, "clocks": dict(zip(names, clocks)), "videos": videos,
+            "frame_times": frame_times}
