@@ -38,7 +38,11 @@ class VideoWriter:
         self.path = Path(path)
         self._tmp = temp_beside(self.path)
         tmp = self._tmp
-        self.container = av.open(str(tmp), "w", format=_format_for(self.path))
+        # movie_timescale: edit lists (e.g. audio that starts after the AAC priming) are stored in
+        # movie ticks; the default 1 ms ticks shifted such audio by up to 1 ms (32 samples)
+        fmt = _format_for(self.path)
+        opts = {"movie_timescale": "90000"} if fmt in ("mp4", "mov") else {}
+        self.container = av.open(str(tmp), "w", format=fmt, options=opts)
         fps_frac = Fraction(fps).limit_denominator(1001)
         vs = self.container.add_stream("libx264", rate=fps_frac)
         vs.width, vs.height = int(width), int(height)
