@@ -68,6 +68,7 @@ class VideoWriter:
             a.layout = layout
             if codec == "aac":
                 a.bit_rate = 192000 * audio_channels
+                a.options = {"aac_coder": "fast"}  # 2x faster than the default two-loop search
             a.time_base = Fraction(1, int(audio_rate))
             self.as_ = a
             self._audio_fmt = "s16" if codec.startswith("pcm_s16") else ("fltp" if codec == "aac" else "flt")
