@@ -23,6 +23,10 @@ import tomli_w
 from mamma_kit.core.errors import UserError
 
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
+
 def temp_beside(path: str | os.PathLike, suffix: str | None = None) -> Path:
     """A new empty temporary file in ``path``'s folder, keeping its suffix; rename it onto
     ``path`` with os.replace when complete (same filesystem, so the rename is atomic)."""
@@ -31,6 +35,7 @@ def temp_beside(path: str | os.PathLike, suffix: str | None = None) -> Path:
     suffix = suffix if suffix is not None else "".join(path.suffixes)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs should look like any other file
     return Path(tmp)
 
 
