@@ -25,9 +25,11 @@ transition sits exactly where the clock model puts it).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from math import gcd
 from typing import Mapping, Sequence
 
 import numpy as np
+from scipy import signal
 
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.timecode import (frames_to_timecode, nominal_rate, parse_timecode, rate_fraction,
@@ -60,6 +62,7 @@ class Microphone:
     clock: ClockModel = field(default_factory=ClockModel)
     duration_s: float = 10.0
     audio_start_s: float = 0.0
+    sample_rate: int | None = None  # None: the rate passed to render_camera_audio
 
 
 @dataclass
@@ -131,6 +134,7 @@ def clap_waveform(sample_rate: int, rng: np.random.Generator, duration_s: float 
 
 
 CLAP_PAD = 32  # leading zeros of clap_waveform: its onset sample
+SOURCE_RATE = 96000  # claps are made at this rate, then resampled to each microphone's
 
 
 def room_impulse_response(sample_rate: int, reverb: Reverb, rng: np.random.Generator,
@@ -295,33 +299,38 @@ def render_camera_audio(mics: Mapping[str, Microphone], claps: Sequence[Clap] = 
     rng_root = np.random.default_rng(seed)
     out: dict[str, tuple[np.ndarray, float]] = {}
     arrivals = arrival_times(mics, claps, speed_of_sound)
-    sources = [clap_waveform(sample_rate, rng_root) for _ in claps]  # one source sound per clap
+    # one source sound per clap, made at 96 kHz and resampled to each microphone's rate
+    sources96 = [clap_waveform(SOURCE_RATE, rng_root) for _ in claps]
     for ci, (name, m) in enumerate(mics.items()):
         rng = np.random.default_rng(rng_root.integers(1 << 62) + ci)
-        n = int(round(m.duration_s * sample_rate))
+        sr = int(m.sample_rate or sample_rate)
+        g = gcd(sr, SOURCE_RATE)
+        sources = [signal.resample_poly(w, sr // g, SOURCE_RATE // g) for w in sources96]
+        pad = CLAP_PAD * sr / SOURCE_RATE
+        n = int(round(m.duration_s * sr))
         acoustic = np.zeros(n)
         burst_rms = []
         for k, c in enumerate(claps):
             dist = max(float(np.linalg.norm(np.subtract(c.position, m.position))), 0.3)
             gain = c.level / dist
             w = sources[k]
-            core = w[CLAP_PAD:CLAP_PAD + int(0.004 * sample_rate)]
+            core = w[int(pad):int(pad) + int(0.004 * sr)]
             burst_rms.append(gain * np.sqrt(np.mean(core ** 2)))
             # floor reflection: image source mirrored at z = 0
             img = np.array(c.position, float) * [1, 1, -1]
             d_img = float(np.linalg.norm(img - np.asarray(m.position, float)))
-            h = room_impulse_response(sample_rate, rv, rng, ground_delay_s=(d_img - dist) / speed_of_sound,
+            h = room_impulse_response(sr, rv, rng, ground_delay_s=(d_img - dist) / speed_of_sound,
                                       ground_gain=dist / max(d_img, 1e-9))
             y = np.convolve(w, h)
-            pos = (arrivals[name][k] - m.audio_start_s) * sample_rate - CLAP_PAD
+            pos = (arrivals[name][k] - m.audio_start_s) * sr - pad
             _add_frac(acoustic, y, pos, gain)
         noise_rms = (max(burst_rms) if burst_rms else 0.05) / 10 ** (snr_db / 20)
         acoustic += rng.standard_normal(n) * noise_rms
         x = np.repeat(acoustic[:, None], n_channels, axis=1)
         if ltc is not None:
-            t_cam = m.audio_start_s + np.arange(n) / sample_rate
+            t_cam = m.audio_start_s + np.arange(n) / sr
             t_ref = m.clock.to_ref(t_cam)
-            x[:, ltc.channel] = render_ltc(t_ref, (1 + m.clock.rate) / sample_rate, ltc,
+            x[:, ltc.channel] = render_ltc(t_ref, (1 + m.clock.rate) / sr, ltc,
                                            float(ltc.shift_s.get(name, 0.0)))
             x[:, ltc.channel] += rng.standard_normal(n) * 1e-3
         out[name] = (np.clip(x, -1, 1).astype(np.float32), float(m.audio_start_s))
@@ -398,14 +407,11 @@ def write_sync_workspace(root, *, n_cameras: int = 3, duration_s: float = 20.0, 
         R = np.stack([x, y, z])
         cams.append(Camera(n, (w, h), np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1]]),
                            np.zeros(5), "radtan", R, -R @ C))
-        mics[n] = Microphone(tuple(C), clocks[i], duration_s, audio_start_s[i])
+        mics[n] = Microphone(tuple(C), clocks[i], duration_s, audio_start_s[i], int(srs[i]))
     claps = [Clap(float(t), tuple(rng.uniform([-1.0, -1.0, 1.0], [1.0, 1.0, 1.6]))) for t in clap_times]
     rendered: dict = {}
     if audio:
-        for sr in sorted(set(srs)):
-            sub = {n: mics[n] for n, s in zip(names, srs) if s == sr}
-            rendered.update(render_camera_audio(sub, claps, sample_rate=sr, snr_db=snr_db, reverb=reverb, ltc=ltc,
-                                                seed=seed + sr))
+        rendered = render_camera_audio(mics, claps, snr_db=snr_db, reverb=reverb, ltc=ltc, seed=seed)
     (root / "videos").mkdir(parents=True, exist_ok=True)
     ext = ".mov" if audio_codec.startswith("pcm") else ".mp4"
     videos, frame_times = {}, {}

@@ -48,6 +48,7 @@ class LtcFrames:
     bit_period: float          # median samples per bit
     sr: int
     n_transitions: int
+    span: tuple[float, float] = (0.0, 0.0)  # samples of the first and last transition: where LTC is present
 
     @property
     def n(self) -> int:
@@ -193,7 +194,7 @@ def decode_ltc(x: np.ndarray, sr: int, fps_hint: float | None = None) -> LtcFram
     order = np.argsort(start[good], kind="stable")
     return LtcFrames(start[good][order], count[good][order].astype(np.int64),
                      ub[good][order].astype(np.uint32), drop[good][order], reverse[good][order], nominal,
-                     bit_period, sr, len(tr))
+                     bit_period, sr, len(tr), (float(tr[0]), float(tr[-1])))
 
 
 @dataclass
@@ -243,10 +244,13 @@ def ltc_clock(frames: LtcFrames, start_s: float, duration_s: float, fps: float |
     use = fw if fw.sum() >= 2 else np.ones(frames.n, bool)
     fit = robust_line(t_cam[use], t_tc[use], scale_floor=2e-6)
     clock = ClockModel(offset=fit.intercept, rate=fit.slope - 1.0, source="ltc")
-    # expected complete frames inside the audio, from the fit
+    # expected: the complete frames between the first and last transition of the signal (the
+    # decoded audio may run on past the recording: AAC padding), dropouts inside count as missed
     frame_dur = 1.0 / float(rate)
-    tc0 = fit.slope * start_s + fit.intercept
-    tc1 = fit.slope * (start_s + duration_s) + fit.intercept
+    a = max(start_s, start_s + frames.span[0] / frames.sr - 1.0 / frames.sr)
+    b = min(start_s + duration_s, start_s + frames.span[1] / frames.sr + 1.0 / frames.sr)
+    tc0 = fit.slope * a + fit.intercept
+    tc1 = fit.slope * b + fit.intercept
     n0 = int(np.ceil(tc0 / frame_dur - 1e-6))
     n1 = int(np.floor(tc1 / frame_dur + 1e-6)) - 1
     expected = max(n1 - n0 + 1, 0)
@@ -261,16 +265,20 @@ def ltc_clock(frames: LtcFrames, start_s: float, duration_s: float, fps: float |
                     ub, drop, int(frames.reverse_f.sum()))
 
 
+def looks_like_ltc(x: np.ndarray) -> bool:
+    """A two-level signal (most samples near +-amplitude), unlike microphone sound."""
+    a = np.abs(x - np.median(x))
+    p99 = float(np.percentile(a, 99))
+    return p99 >= 1e-4 and float(np.percentile(a, 30)) >= 0.3 * p99
+
+
 def find_ltc_channel(samples_nc: np.ndarray, sr: int, fps_hint: float | None = None
                      ) -> tuple[int, LtcFrames] | None:
     """The channel carrying LTC (the one with most decoded frames), or None."""
     best = None
     for c in range(samples_nc.shape[1]):
         x = samples_nc[:, c]
-        # LTC is a two-level signal: most samples sit near +-amplitude
-        a = np.abs(x - np.median(x))
-        p99 = float(np.percentile(a, 99))
-        if p99 < 1e-4 or float(np.percentile(a, 30)) < 0.3 * p99:
+        if not looks_like_ltc(x):
             continue
         fr = decode_ltc(x, sr, fps_hint)
         if fr.n and (best is None or fr.n > best[1].n):

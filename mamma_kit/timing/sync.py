@@ -29,7 +29,7 @@ from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
 from mamma_kit.timing.clap import ClapResult, ClapSettings, Track, clap_sync
 from mamma_kit.timing.fit import relative_clock
-from mamma_kit.timing.ltc import LtcClock, find_ltc_channel, ltc_clock
+from mamma_kit.timing.ltc import LtcClock, find_ltc_channel, looks_like_ltc, ltc_clock
 from mamma_kit.timing.tmcd import TmcdClock, tmcd_clock
 
 METHODS = ("auto", "clap", "ltc", "tmcd")
@@ -292,7 +292,10 @@ def _run_clap(media, reference, cfg, ltc_channels, clap_positions, mic_positions
     tracks = {}
     for n, m in media.items():
         a = m.audio
-        chans = [c for c in range(a.n_channels) if c != ltc_channels.get(n)]
+        if n in ltc_channels:
+            chans = [c for c in range(a.n_channels) if c != ltc_channels[n]]
+        else:  # LTC not decoded (e.g. --method clap): still keep timecode channels out of the mix
+            chans = [c for c in range(a.n_channels) if not looks_like_ltc(a.samples_nc[:, c])]
         if not chans:
             raise UserError(f"{m.path.name} has only the LTC channel: no microphone sound to find claps in",
                             "sync by --method ltc")
@@ -308,7 +311,8 @@ def _run_clap(media, reference, cfg, ltc_channels, clap_positions, mic_positions
 
 
 def _agreement(by_method, media, chosen, check, clap_res, warnings, reference) -> dict[str, dict]:
-    """Per camera: mapping difference (ms) at mid-take between each other method and the chosen one."""
+    """Per camera: mapping difference (ms) between each other method and the chosen one, at
+    mid-take (at the claps when claps are involved)."""
     out: dict[str, dict] = {}
     base = by_method[chosen]
     tol = float(check.get("agreement_tolerance_ms", 5.0))
@@ -321,6 +325,10 @@ def _agreement(by_method, media, chosen, check, clap_res, warnings, reference) -
             if n == reference:
                 continue
             tm = float(np.median(m.timestamps))
+            if "clap" in (k, chosen) and clap_res is not None:
+                # compare where the claps give evidence (one clap: no drift, exact only there)
+                t_ev = [o.t_i if o.i == n else o.t_j for o in clap_res.observations if n in (o.i, o.j)]
+                tm = float(np.median(t_ev)) if t_ev else tm
             diff_ms = float(cl[n].to_ref(tm) - base[n].to_ref(tm)) * 1e3
             out.setdefault(n, {})[f"{k}-{chosen}"] = round(diff_ms, 4)
             if "tmcd" in (k, chosen):
