@@ -96,7 +96,7 @@ def test_gcc_phat_subsample_delay(delay, seed):
     a += rng.normal(0, noise, n)
     b += rng.normal(0, noise, n)
     g = gcc_phat(a, b, sr, max_lag=60, band=(500, 8000))
-    assert abs(g.lag - delay) < 0.1 and g.psr > 5  # 0.1 sample = 2 us
+    assert abs(g.lag - delay) < 0.25 and g.psr > 5  # 0.25 sample = 5 us, a tenth of the 0.05 ms goal
 
 
 def test_robust_line_ignores_outliers():
