@@ -49,6 +49,8 @@ class ClapSettings:
     min_psr: float = 4.0              # GCC peaks weaker than this are ignored
     speed_of_sound: float = SPEED_OF_SOUND
     loop_tolerance_ms: float = 2.0    # loop closure beyond this is an error
+    estimate_positions: bool = True   # with calibrated cameras and no clap positions: estimate them
+    position_prior_m: float = 1.0     # spread of claps around the rig centre (prior of the estimate)
 
     @classmethod
     def from_dict(cls, d: Mapping | None) -> "ClapSettings":
@@ -236,6 +238,14 @@ def clap_sync(tracks: Mapping[str, Track], reference: str, settings: ClapSetting
                             "clap closer to the cameras and away from walls, or sync by --method ltc/tmcd")
     # 4. joint solve
     clocks, cov, drift = _solve(names, reference, obs, dist, events, tracks)
+    est_positions = None
+    if dist is None and mic_positions is not None and st.estimate_positions and \
+            all(n in mic_positions for n in names):
+        # sound travel from clap positions estimated with the clocks (a weak prior keeps
+        # them near the rig's centre where the time differences leave them free)
+        est_positions, dist = _estimate_positions(names, reference, obs, events, mic_positions, clocks, drift,
+                                                  st.speed_of_sound, st.position_prior_m)
+        clocks, cov, drift = _solve(names, reference, obs, dist, events, tracks)
     # 5. loop consistency
     lag_of = {(o.i, o.j, o.event): o.lag for o in obs}
     closure = []
@@ -273,6 +283,8 @@ def clap_sync(tracks: Mapping[str, Track], reference: str, settings: ClapSetting
         "observations": len(obs), "loop_closure_max_ms": float(np.abs(closure).max()) if closure.size else 0.0,
         "loop_closure_rms_ms": float(np.sqrt(np.mean(closure ** 2))) if closure.size else 0.0,
         "sound_travel_corrected": dist is not None,
+        "clap_positions": "known" if clap_positions is not None and mic_positions is not None else
+        ("estimated" if est_positions is not None else "unknown"),
         "drift_measured": bool(drift),
     }
     if closure.size and diag["loop_closure_max_ms"] > st.loop_tolerance_ms:
@@ -280,6 +292,8 @@ def clap_sync(tracks: Mapping[str, Track], reference: str, settings: ClapSetting
             f"clap delays are inconsistent around camera loops (up to {diag['loop_closure_max_ms']:.2f} ms, "
             f"tolerance {st.loop_tolerance_ms:g} ms): echoes or other sharp sounds were taken for the clap",
             "clap in the open, away from walls, or raise clap.loop_tolerance_ms in the preset")
+    if est_positions is not None:
+        diag["estimated_clap_positions_m"] = [[round(float(v), 3) for v in p] for p in est_positions]
     return ClapResult(clocks, reference, np.asarray(t_ev), anchors, obs, closure, cam_diag, diag, curves, onsets)
 
 
@@ -299,6 +313,49 @@ def _distances(names, events, clap_positions, mic_positions, speed: float) -> di
                         "calibrate every camera, or drop clap_positions")
     return {(n, k): float(np.linalg.norm(P[e] - np.asarray(mic_positions[n], float))) / speed
             for n in names for e, k in enumerate(events)}
+
+
+def _estimate_positions(names, reference, obs, events, mic_positions, clocks, drift, speed, prior_m):
+    """Clap positions (K, 3) and travel times, jointly with the clocks, by robust nonlinear least
+    squares on all pair observations plus a Gaussian prior around the microphones' centroid."""
+    from scipy.optimize import least_squares
+
+    others = [n for n in names if n != reference]
+    M = {n: np.asarray(mic_positions[n], float) for n in names}
+    p0 = np.mean([M[n] for n in names], axis=0)
+    ev_idx = {k: e for e, k in enumerate(events)}
+    npar = 2 if drift else 1
+    th0 = np.concatenate([[clocks[n].offset] + ([clocks[n].rate] if drift else []) for n in others])
+    x0 = np.concatenate([th0, np.tile(p0, len(events))])
+    I = np.array([names.index(o.i) for o in obs])
+    J = np.array([names.index(o.j) for o in obs])
+    E = np.array([ev_idx[o.event] for o in obs])
+    ti = np.array([o.t_i for o in obs])
+    tj = np.array([o.t_j for o in obs])
+    w = np.sqrt(np.array([o.weight for o in obs]) / max(np.mean([o.weight for o in obs]), 1e-9))
+    mics = np.stack([M[n] for n in names])
+    sigma = 2e-5  # 0.02 ms: typical GCC precision
+
+    def unpack(x):
+        off = np.zeros(len(names))
+        rate = np.zeros(len(names))
+        for c, n in enumerate(others):
+            off[names.index(n)] = x[npar * c]
+            if drift:
+                rate[names.index(n)] = x[npar * c + 1]
+        return off, rate, x[npar * len(others):].reshape(-1, 3)
+
+    def resid(x):
+        off, rate, P = unpack(x)
+        d_i = np.linalg.norm(P[E] - mics[I], axis=1) / speed
+        d_j = np.linalg.norm(P[E] - mics[J], axis=1) / speed
+        r = ((1 + rate[J]) * tj + off[J] - d_j) - ((1 + rate[I]) * ti + off[I] - d_i)
+        return np.r_[w * r / sigma, (P - p0).ravel() / prior_m]
+
+    sol = least_squares(resid, x0, loss="soft_l1", f_scale=3.0, x_scale="jac")
+    _, _, P = unpack(sol.x)
+    dist = {(n, k): float(np.linalg.norm(P[e] - M[n])) / speed for n in names for e, k in enumerate(events)}
+    return P, dist
 
 
 def _solve(names, reference, obs: list[Observation], dist, events, tracks):
