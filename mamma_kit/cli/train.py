@@ -1,0 +1,41 @@
+"""`mamma-kit train`: train a MammaNet on crop shards (resumable; writes weights + model card)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from mamma_kit.cli.app import app
+from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
+from mamma_kit.core import log
+
+
+@app.command("train")
+def train_cmd(
+    config: Path = typer.Argument(..., help="Training config TOML (e.g. mamma_kit/landmarks/configs/embedded.toml)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from the output folder's checkpoint."),
+    device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
+    out: Optional[str] = typer.Option(None, "--out", help="Output folder (overrides [train] out)."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Total steps (overrides [train] steps)."),
+    for_steps: Optional[int] = typer.Option(None, "--for-steps", min=1, help="Stop this run after N steps with a "
+                                                                             "checkpoint (continue with --resume)."),
+    for_minutes: Optional[float] = typer.Option(None, "--for-minutes", help="Stop this run after M minutes with a "
+                                                                           "checkpoint (continue with --resume)."),
+    json_out: bool = JsonOpt,
+    quiet: bool = QuietOpt,
+) -> None:
+    """Train MammaNet on `mamma-kit synth --crops` shards; checkpoints every few hundred steps, evaluates on
+    held-out shards, and writes <arch>.pt with model_card.md/json in the output folder."""
+    from mamma_kit.landmarks.train import train
+
+    setup(quiet, json_out)
+    summary = train(config, resume=resume, device=device, out=out, steps=steps, for_steps=for_steps,
+                    for_minutes=for_minutes)
+    if json_out:
+        emit_json(summary)
+    elif summary.get("paused"):
+        log.info(f"paused at step {summary['steps']} of {summary['of']}; run again with --resume")
+    else:
+        log.info(f"done: {summary['steps']} steps, weights {summary['weights']}")

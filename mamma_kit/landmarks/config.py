@@ -1,0 +1,154 @@
+"""MammaNet architecture configs: one dataclass, a few named sizes.
+
+Every MammaNet in mamma-kit is built from a :class:`MammaNetConfig` by
+:class:`mamma_kit.landmarks.model.MammaNet`. The named configs:
+
+``official``
+    The published checkpoint (shared/OFFICIAL-MAMMANET.md): ViT-B/16 at 512 x 384 (H x W), patch conv
+    padding 2, 6-layer DETR decoder (d 768, 8 heads, FFN 2048) over 512 landmark queries, mask input.
+    Its state dict has exactly the 282 names and shapes of the official Lightning checkpoint.
+``embedded``
+    The CPU default shipped in the package: d 128 at 192 x 144, patch 12 (16 x 12 tokens),
+    6 encoder layers, 2 decoder layers over 512 queries, mask input.
+``embedded-256``
+    A larger CPU model: d 192 at 256 x 192, patch 16, 6 encoder and 3 decoder layers.
+``embedded-single`` / ``official-single``
+    The single-query baseline (one learned token decodes all landmarks, as in CameraHMR) at the
+    size of ``embedded`` / ``official``, for the paper's ablation.
+``tiny``
+    For tests: d 32 at 64 x 48.
+
+A config round-trips through a plain dict (stored with the weights and in training TOMLs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+from mamma_kit.core.errors import UserError
+
+
+@dataclass(frozen=True)
+class MammaNetConfig:
+    """Sizes of a MammaNet. ``input_hw`` is (H, W) of the network input, 3:4 W:H."""
+
+    name: str = "custom"
+    input_hw: tuple[int, int] = (256, 192)
+    # ViT backbone
+    patch: int = 16
+    patch_padding: int = 0
+    dim: int = 192
+    depth: int = 6
+    heads: int = 3
+    mlp_dim: int = 768
+    vit_eps: float = 1e-6
+    # mask embedding: Conv(1->c0, s0) LN GELU Conv(c0->c1, s1) LN GELU Conv(c1->dim, 1); s0 * s1 = patch
+    use_mask: bool = True
+    mask_channels: tuple[int, int] = (4, 16)
+    mask_strides: tuple[int, int] = (4, 4)
+    # DETR decoder
+    queries: str = "per_landmark"  # or "single" (CameraHMR-style baseline)
+    dec_layers: int = 3
+    dec_heads: int = 4
+    dec_ffn: int = 512
+    dec_eps: float = 1e-5
+    n_landmarks: int = 512
+    # pre-processing: "official" d = max(box) / (2 * W_in); "scale" d = true downscale factor
+    antialias: str = "scale"
+
+    # ---- derived ----------------------------------------------------------------------
+    @property
+    def grid_hw(self) -> tuple[int, int]:
+        """Token grid (rows, cols) of the patch conv."""
+        h, w = self.input_hw
+        p, pad = self.patch, self.patch_padding
+        return (h + 2 * pad - p) // p + 1, (w + 2 * pad - p) // p + 1
+
+    @property
+    def n_tokens(self) -> int:
+        gh, gw = self.grid_hw
+        return gh * gw
+
+    def validate(self) -> "MammaNetConfig":
+        h, w = self.input_hw
+        if h <= 0 or w <= 0 or abs(w / h - 0.75) > 0.02:
+            raise UserError(f"MammaNet config {self.name}: input_hw {self.input_hw} must be H x W with W:H = 3:4",
+                            "use e.g. [256, 192] or [512, 384]")
+        if self.dim % self.heads or self.dim % self.dec_heads:
+            raise UserError(f"MammaNet config {self.name}: dim {self.dim} not divisible by the head counts",
+                            "pick heads / dec_heads that divide dim")
+        if self.queries not in ("per_landmark", "single"):
+            raise UserError(f"MammaNet config {self.name}: queries must be 'per_landmark' or 'single'")
+        if self.antialias not in ("official", "scale"):
+            raise UserError(f"MammaNet config {self.name}: antialias must be 'official' or 'scale'")
+        if self.use_mask:
+            s = self.mask_strides[0] * self.mask_strides[1]
+            if (h // s, w // s) != self.grid_hw or h % s or w % s:
+                raise UserError(f"MammaNet config {self.name}: mask embedding grid {(h // s, w // s)} differs "
+                                f"from the patch grid {self.grid_hw}", "make mask_strides multiply to the patch size")
+        return self
+
+    # ---- dict round trip --------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        for k, v in d.items():
+            if isinstance(v, tuple):
+                d[k] = list(v)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "MammaNetConfig":
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(d) - set(known))
+        if unknown:
+            raise UserError(f"unknown MammaNet config keys: {', '.join(unknown)}",
+                            f"valid keys: {', '.join(known)}")
+        kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
+        return cls(**kw).validate()
+
+
+OFFICIAL = MammaNetConfig(
+    name="official", input_hw=(512, 384), patch=16, patch_padding=2, dim=768, depth=12, heads=12, mlp_dim=3072,
+    use_mask=True, mask_channels=(4, 16), mask_strides=(4, 4), queries="per_landmark", dec_layers=6, dec_heads=8,
+    dec_ffn=2048, n_landmarks=512, antialias="official",
+)
+
+EMBEDDED = MammaNetConfig(
+    name="embedded", input_hw=(192, 144), patch=12, dim=128, depth=6, heads=4, mlp_dim=512,
+    use_mask=True, mask_channels=(4, 16), mask_strides=(4, 3), dec_layers=2, dec_heads=4, dec_ffn=512,
+)
+
+EMBEDDED_256 = MammaNetConfig(
+    name="embedded-256", input_hw=(256, 192), patch=16, dim=192, depth=6, heads=3, mlp_dim=768,
+    use_mask=True, mask_strides=(4, 4), dec_layers=3, dec_heads=4, dec_ffn=768,
+)
+
+TINY = MammaNetConfig(
+    name="tiny", input_hw=(64, 48), patch=8, dim=32, depth=2, heads=2, mlp_dim=64, mask_strides=(4, 2),
+    dec_layers=1, dec_heads=2, dec_ffn=64, n_landmarks=16,
+)
+
+CONFIGS: dict[str, MammaNetConfig] = {
+    c.name: c for c in (
+        OFFICIAL, EMBEDDED, EMBEDDED_256, TINY,
+        replace(EMBEDDED, name="embedded-single", queries="single"),
+        replace(EMBEDDED, name="embedded-nomask", use_mask=False),
+        replace(OFFICIAL, name="official-single", queries="single"),
+        replace(TINY, name="tiny-single", queries="single"),
+    )
+}
+
+DEFAULT_ARCH = "embedded"
+
+
+def get_config(name: str, **overrides: Any) -> MammaNetConfig:
+    """A named config, optionally with fields overridden (``n_landmarks=16``)."""
+    if name not in CONFIGS:
+        raise UserError(f"unknown MammaNet architecture '{name}'", f"choose one of: {', '.join(CONFIGS)}")
+    cfg = CONFIGS[name]
+    if overrides:
+        d = cfg.to_dict()
+        d.update(overrides)
+        cfg = MammaNetConfig.from_dict(d)
+    return cfg.validate()

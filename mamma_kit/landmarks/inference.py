@@ -1,0 +1,241 @@
+"""MammaNet inference: crops -> network -> image-space landmarks, and a whole workspace streamed.
+
+``Predictor`` wraps a loaded model with the crop contract (crop.py):
+
+>>> pred = Predictor(load_model())                      # embedded weights
+>>> out = pred.predict_image(rgb_hw3, [mask_hw, ...])   # dict of (P, L, ...) arrays in image px
+
+``run_camera`` streams one camera's video: a reader thread decodes frames and cuts the crops of every
+(frame, track) with a non-empty mask into a bounded queue; the main thread batches them through the
+network. Memory is one frame plus a few batches of crops, whatever the video length.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import numpy as np
+import torch
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn, \
+    TimeRemainingColumn
+from rich.text import Text
+
+from mamma_kit.core import log
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.tracks import LandmarkTracks, MaskTracks
+from mamma_kit.landmarks import crop as C
+from mamma_kit.landmarks.weights import LoadedModel
+
+MIN_MASK_AREA = 16  # px; (almost) empty masks are skipped as in the official pre-processing
+
+
+class Predictor:
+    def __init__(self, loaded: LoadedModel, device: str = "cpu"):
+        self.loaded = loaded
+        self.model = loaded.model.to(device).eval()
+        self.cfg = loaded.config
+        self.device = device
+        H, W = self.cfg.input_hw
+        self.out_wh = (W, H)
+
+    @property
+    def n_landmarks(self) -> int:
+        return self.cfg.n_landmarks
+
+    def crop(self, image_hw3: np.ndarray, mask_hw: np.ndarray | None = None, tight_box: np.ndarray | None = None):
+        """(crop image, crop mask or None, crop box cx, cy, bw, bh) of one person; the box comes from the mask
+        unless ``tight_box`` (x1, y1, x2, y2 min/max pixel indices) is given. None if the mask is empty."""
+        if tight_box is None:
+            if mask_hw is None:
+                raise ValueError("need a mask or a box")
+            tight_box = C.mask_box(mask_hw)
+            if tight_box is None:
+                return None
+        box = C.expand_box(tight_box)
+        img, m, _ = C.warp_crop(image_hw3, box, self.out_wh, mask_hw if self.cfg.use_mask else None,
+                                rule=self.cfg.antialias)
+        return img, m, box
+
+    @torch.inference_mode()
+    def predict_crops(self, crops_bhw3: np.ndarray, masks_bhw: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Network outputs for a batch of crops: xy_n (B, L, 2) in [-1, 1], log_sigma (B, L), and
+        visibility / contact / floor_contact probabilities (B, L)."""
+        x = C.normalise_images(crops_bhw3, self.device)
+        m = C.mask_tensor(masks_bhw, self.device) if self.cfg.use_mask else None
+        out = self.model(x, m)
+        return {"xy_n": out["xy"].float().cpu().numpy(), "log_sigma": out["log_sigma"].float().cpu().numpy(),
+                "visibility": torch.sigmoid(out["vis_logit"]).float().cpu().numpy(),
+                "contact": torch.sigmoid(out["contact_logit"]).float().cpu().numpy(),
+                "floor_contact": torch.sigmoid(out["floor_logit"]).float().cpu().numpy()}
+
+    @staticmethod
+    def to_image(net: dict[str, np.ndarray], boxes_b4: np.ndarray) -> dict[str, np.ndarray]:
+        """Network outputs -> image px: xy (B, L, 2), sigma (B, L, 2) per axis, probabilities unchanged."""
+        return {"xy": C.normalised_to_image(net["xy_n"], boxes_b4), "sigma": C.sigma_to_pixels(net["log_sigma"], boxes_b4),
+                "visibility": net["visibility"], "contact": net["contact"], "floor_contact": net["floor_contact"]}
+
+    def predict_image(self, image_hw3: np.ndarray, masks: list[np.ndarray]) -> dict[str, np.ndarray]:
+        """Landmarks in image px for each person mask of one image (persons with empty masks get NaN)."""
+        P, L = len(masks), self.n_landmarks
+        out = {"xy": np.full((P, L, 2), np.nan), "sigma": np.full((P, L, 2), np.nan),
+               "visibility": np.zeros((P, L)), "contact": np.zeros((P, L)), "floor_contact": np.zeros((P, L))}
+        crops = [self.crop(image_hw3, m) for m in masks]
+        keep = [i for i, c in enumerate(crops) if c is not None]
+        if keep:
+            net = self.predict_crops(np.stack([crops[i][0] for i in keep]),
+                                     np.stack([crops[i][1] for i in keep]) if self.cfg.use_mask else None)
+            res = self.to_image(net, np.stack([crops[i][2] for i in keep]))
+            for key in out:
+                out[key][keep] = res[key]
+        return out
+
+
+# ---- progress with crops/s --------------------------------------------------------------------
+class _RateColumn(ProgressColumn):
+    def render(self, task) -> Text:
+        speed = task.finished_speed or task.speed
+        return Text(f"{speed:5.1f} crops/s" if speed else "  ... crops/s")
+
+
+def _progress() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), _RateColumn(),
+                    TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=log.console,
+                    disable=log.is_quiet() or not log.console.is_terminal, transient=True)
+
+
+# ---- streaming one camera -------------------------------------------------------------------------
+def mask_areas(mt: MaskTracks) -> np.ndarray:
+    """(T, K) mask area px straight from the RLE runs (no decoding)."""
+    counts = np.asarray(mt.rle_counts, np.int64)
+    pos = np.arange(len(counts))
+    # runs at odd offsets from their segment's start are foreground; split by global parity
+    cs = [np.r_[0, np.cumsum(np.where(pos % 2 == par, counts, 0))] for par in (0, 1)]
+    start, n = mt.rle_index[..., 0], mt.rle_index[..., 1]
+    par = (start + 1) % 2
+    a0 = cs[0][start + n] - cs[0][start]
+    a1 = cs[1][start + n] - cs[1][start]
+    return np.where(n > 0, np.where(par == 0, a0, a1), 0)
+
+
+@dataclass
+class _Job:
+    t: int
+    k: int
+    image: np.ndarray
+    mask: np.ndarray | None
+    box: np.ndarray
+
+
+def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, np.ndarray]],
+               todo: np.ndarray) -> Iterator[_Job]:
+    boxes = C.tight_box_from_track_box(masks.boxes)
+    for t, img in frames:
+        for k in np.flatnonzero(todo[t]):
+            m = masks.mask(t, k)
+            tb = boxes[t, k] if np.all(np.isfinite(boxes[t, k])) else C.mask_box(m)
+            res = pred.crop(img, m, tb)
+            if res is not None:
+                yield _Job(int(t), int(k), res[0], res[1], res[2])
+
+
+def _threaded(gen_fn: Callable[[], Iterator], maxsize: int) -> Iterator:
+    """Run a generator in a thread; yield its items (exceptions re-raised here)."""
+    q: queue.Queue = queue.Queue(maxsize=maxsize)
+    done = object()
+    stop = threading.Event()
+
+    def work():
+        try:
+            for item in gen_fn():
+                while not stop.is_set():
+                    try:
+                        q.put(item, timeout=0.2)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put(done)
+        except BaseException as e:  # noqa: BLE001 - handed to the consumer
+            q.put(e)
+
+    th = threading.Thread(target=work, daemon=True)
+    th.start()
+    try:
+        while True:
+            item = q.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        th.join(timeout=5)
+
+
+def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
+               min_area: int = MIN_MASK_AREA, producer: dict | None = None) -> tuple[LandmarkTracks, dict]:
+    """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video."""
+    from mamma_kit.landmarks.gt import nearest_frames
+    from mamma_kit.video import VideoReader
+
+    reader = VideoReader(video_path)
+    if tuple(reader.size) != tuple(masks.image_size):
+        raise UserError(f"masks/{cam}.npz is {masks.image_size[0]}x{masks.image_size[1]} but {reader.path.name} is "
+                        f"{reader.size[0]}x{reader.size[1]}", "run `mamma-kit track` again for this camera")
+    todo = masks.present & (mask_areas(masks) >= min_area)
+    vid_idx = nearest_frames(masks.frame_times, reader.timestamps)
+    lost = int((todo.any(1) & (vid_idx < 0)).sum())
+    if lost:
+        log.warn(f"{cam}: {lost} mask frames have no video frame at their time; they are skipped")
+    todo &= (vid_idx >= 0)[:, None]
+    total = int(todo.sum())
+    by_video = {int(v): int(t) for t, v in enumerate(vid_idx) if v >= 0 and todo[t].any()}
+
+    def frames():
+        for i, _, img in reader.read_indices(sorted(by_video)):
+            yield by_video[i], img
+
+    out = LandmarkTracks.empty(cam, masks.image_size, masks.frame_times, masks.track_ids, pred.n_landmarks,
+                               pred.loaded.landmark_set, f"mammanet:{pred.cfg.name}")
+    out.producer = producer or {}
+    t0 = time.perf_counter()
+    pending: list[_Job] = []
+
+    def flush():
+        if not pending:
+            return
+        net = pred.predict_crops(np.stack([j.image for j in pending]),
+                                 np.stack([j.mask for j in pending]) if pred.cfg.use_mask else None)
+        res = Predictor.to_image(net, np.stack([j.box for j in pending]))
+        ti = np.array([j.t for j in pending])
+        ki = np.array([j.k for j in pending])
+        out.valid[ti, ki] = True
+        for key in ("xy", "sigma", "visibility", "contact", "floor_contact"):
+            getattr(out, key)[ti, ki] = res[key]
+        pending.clear()
+
+    done = 0
+    with _progress() as bar:
+        task = bar.add_task(f"landmarks {cam}", total=total)
+        for job in _threaded(lambda: _crop_jobs(pred, masks, frames(), todo), maxsize=2 * batch):
+            pending.append(job)
+            if len(pending) >= batch:
+                n = len(pending)
+                flush()
+                done += n
+                bar.advance(task, n)
+        n = len(pending)
+        flush()
+        done += n
+        bar.advance(task, n)
+    secs = time.perf_counter() - t0
+    summary = {"camera": cam, "crops": done, "frames": int(todo.any(1).sum()), "tracks": int(len(masks.track_ids)),
+               "seconds": round(secs, 3), "crops_per_s": round(done / secs, 2) if secs > 0 else None}
+    log.info(f"{cam}: {done} crops in {secs:.1f} s ({summary['crops_per_s']} crops/s)")
+    return out, summary

@@ -1,0 +1,296 @@
+"""MammaNet in plain torch: ViT image features + mask embedding -> DETR decoder over landmark queries.
+
+The module names follow the official checkpoint (shared/OFFICIAL-MAMMANET.md) so that the
+``official`` config loads it strictly; smaller configs use the same classes at other sizes:
+
+- ``backbone``: ViT. ``patch_embed.proj`` Conv2d(3, D, k=p, s=p, padding=pad) -> tokens (row-major);
+  ``pos_embed`` (1, N + 1, D): token i gets ``pos_embed[i + 1] + pos_embed[0]`` (row 0 is a bias
+  shared by every token; there is no class token); pre-norm ``blocks`` (LayerNorm eps 1e-6, qkv with
+  bias, exact GELU, scale head_dim^-0.5) and ``last_norm``; output (B, D, gh, gw).
+- ``mask_downscaling.mask_downscaling``: Conv(1->4, s4) LayerNorm2d GELU Conv(4->16, s4) LayerNorm2d GELU
+  Conv(16->D, 1), summed with the backbone output *after* ``last_norm``.
+- ``decoder``: ``decoder_detr`` post-norm DETR layers with sequence-first nn.MultiheadAttention
+  (self-attn q = k = tgt + query_pos, v = tgt; cross-attn q = tgt + query_pos, k = memory + pos,
+  v = memory, pos = pos_embed[1:]), a final ``norm``; target starts at zeros, queries are
+  ``query_embed`` (L, D). Heads: ``landmarks`` MLP D -> D -> D -> 3 (x, y, log sigma; x, y in
+  [-1, 1] over the crop), ``vis_prob``, ``contact_prob``, ``floor_contact_prob`` Linear(D, 1) logits.
+- ``queries = "single"``: one learned token decodes all L landmarks (CameraHMR-style baseline);
+  the heads then output 3L / L / L / L values from that token.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TypedDict
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from mamma_kit.landmarks.config import MammaNetConfig
+
+
+class MammaNetOutput(TypedDict):
+    xy: torch.Tensor  # (B, L, 2) normalised crop coordinates in [-1, 1]
+    log_sigma: torch.Tensor  # (B, L) log sigma in normalised units (1 = half the crop width / height)
+    vis_logit: torch.Tensor  # (B, L)
+    contact_logit: torch.Tensor  # (B, L)
+    floor_logit: torch.Tensor  # (B, L)
+
+
+# ---- backbone ------------------------------------------------------------------------------
+class PatchEmbed(nn.Module):
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        self.proj = nn.Conv2d(3, cfg.dim, kernel_size=cfg.patch, stride=cfg.patch, padding=cfg.patch_padding)
+
+    def forward(self, x_b3hw: torch.Tensor) -> torch.Tensor:
+        return self.proj(x_b3hw)  # (B, D, gh, gw)
+
+
+class Attention(nn.Module):
+    def __init__(self, dim: int, heads: int):
+        super().__init__()
+        self.heads = heads
+        self.qkv = nn.Linear(dim, 3 * dim, bias=True)
+        self.proj = nn.Linear(dim, dim)
+
+    def forward(self, x_bnd: torch.Tensor) -> torch.Tensor:
+        B, N, D = x_bnd.shape
+        qkv = self.qkv(x_bnd).reshape(B, N, 3, self.heads, D // self.heads).permute(2, 0, 3, 1, 4)
+        # default scale of scaled_dot_product_attention is head_dim ** -0.5
+        o = F.scaled_dot_product_attention(qkv[0], qkv[1], qkv[2])
+        return self.proj(o.transpose(1, 2).reshape(B, N, D))
+
+
+class Mlp(nn.Module):
+    def __init__(self, dim: int, hidden: int):
+        super().__init__()
+        self.fc1 = nn.Linear(dim, hidden)
+        self.fc2 = nn.Linear(hidden, dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.fc2(F.gelu(self.fc1(x)))
+
+
+class Block(nn.Module):
+    """Pre-norm transformer block."""
+
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        self.norm1 = nn.LayerNorm(cfg.dim, eps=cfg.vit_eps)
+        self.attn = Attention(cfg.dim, cfg.heads)
+        self.norm2 = nn.LayerNorm(cfg.dim, eps=cfg.vit_eps)
+        self.mlp = Mlp(cfg.dim, cfg.mlp_dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x + self.attn(self.norm1(x))
+        return x + self.mlp(self.norm2(x))
+
+
+class ViT(nn.Module):
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        self.grid_hw = cfg.grid_hw
+        self.patch_embed = PatchEmbed(cfg)
+        self.pos_embed = nn.Parameter(torch.zeros(1, cfg.n_tokens + 1, cfg.dim))
+        self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.depth))
+        self.last_norm = nn.LayerNorm(cfg.dim, eps=cfg.vit_eps)
+
+    def forward(self, x_b3hw: torch.Tensor) -> torch.Tensor:
+        f = self.patch_embed(x_b3hw)
+        B, D, gh, gw = f.shape
+        if (gh, gw) != self.grid_hw:
+            raise ValueError(f"input gives a {gh}x{gw} token grid, the model expects {self.grid_hw}")
+        x = f.flatten(2).transpose(1, 2)  # (B, N, D), row-major tokens
+        x = x + self.pos_embed[:, 1:] + self.pos_embed[:, :1]
+        for blk in self.blocks:
+            x = blk(x)
+        x = self.last_norm(x)
+        return x.transpose(1, 2).reshape(B, D, gh, gw)
+
+
+# ---- mask embedding ----------------------------------------------------------------------------
+class LayerNorm2d(nn.Module):
+    """LayerNorm over the channel dimension of (B, C, H, W)."""
+
+    def __init__(self, channels: int, eps: float = 1e-6):
+        super().__init__()
+        self.weight = nn.Parameter(torch.ones(channels))
+        self.bias = nn.Parameter(torch.zeros(channels))
+        self.eps = eps
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        u = x.mean(1, keepdim=True)
+        s = (x - u).pow(2).mean(1, keepdim=True)
+        x = (x - u) / torch.sqrt(s + self.eps)
+        return self.weight[:, None, None] * x + self.bias[:, None, None]
+
+
+class MaskEmbed(nn.Module):
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        c0, c1 = cfg.mask_channels
+        s0, s1 = cfg.mask_strides
+        self.mask_downscaling = nn.Sequential(
+            nn.Conv2d(1, c0, kernel_size=s0, stride=s0), LayerNorm2d(c0, cfg.vit_eps), nn.GELU(),
+            nn.Conv2d(c0, c1, kernel_size=s1, stride=s1), LayerNorm2d(c1, cfg.vit_eps), nn.GELU(),
+            nn.Conv2d(c1, cfg.dim, kernel_size=1),
+        )
+
+    def forward(self, mask_b1hw: torch.Tensor) -> torch.Tensor:
+        return self.mask_downscaling(mask_b1hw)
+
+
+# ---- decoder -------------------------------------------------------------------------------------
+class DecoderLayer(nn.Module):
+    """DETR decoder layer, post-norm, sequence-first (S, B, D) tensors."""
+
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        d = cfg.dim
+        self.self_attn = nn.MultiheadAttention(d, cfg.dec_heads)
+        self.multihead_attn = nn.MultiheadAttention(d, cfg.dec_heads)
+        self.linear1 = nn.Linear(d, cfg.dec_ffn)
+        self.linear2 = nn.Linear(cfg.dec_ffn, d)
+        self.norm1 = nn.LayerNorm(d, eps=cfg.dec_eps)
+        self.norm2 = nn.LayerNorm(d, eps=cfg.dec_eps)
+        self.norm3 = nn.LayerNorm(d, eps=cfg.dec_eps)
+
+    def forward(self, tgt: torch.Tensor, memory: torch.Tensor, pos: torch.Tensor,
+                query_pos: torch.Tensor) -> torch.Tensor:
+        q = tgt + query_pos
+        tgt = self.norm1(tgt + self.self_attn(q, q, tgt, need_weights=False)[0])
+        tgt2 = self.multihead_attn(tgt + query_pos, memory + pos, memory, need_weights=False)[0]
+        tgt = self.norm2(tgt + tgt2)
+        return self.norm3(tgt + self.linear2(F.gelu(self.linear1(tgt))))
+
+
+class DetrDecoder(nn.Module):
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        self.layers = nn.ModuleList(DecoderLayer(cfg) for _ in range(cfg.dec_layers))
+        self.norm = nn.LayerNorm(cfg.dim, eps=cfg.dec_eps)
+
+    def forward(self, tgt, memory, pos, query_pos) -> torch.Tensor:
+        for layer in self.layers:
+            tgt = layer(tgt, memory, pos, query_pos)
+        return self.norm(tgt)  # only the last layer's output is used
+
+
+class MLP(nn.Module):
+    def __init__(self, dim_in: int, hidden: int, dim_out: int, n_layers: int = 3):
+        super().__init__()
+        dims = [dim_in] + [hidden] * (n_layers - 1) + [dim_out]
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for i, layer in enumerate(self.layers):
+            x = layer(x)
+            if i < len(self.layers) - 1:
+                x = F.relu(x)
+        return x
+
+
+class LandmarkDecoder(nn.Module):
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        self.single = cfg.queries == "single"
+        L, d = cfg.n_landmarks, cfg.dim
+        per = L if self.single else 1  # values per query
+        self.n_landmarks = L
+        self.query_embed = nn.Embedding(1 if self.single else L, d)
+        self.decoder_detr = DetrDecoder(cfg)
+        self.landmarks = MLP(d, d, 3 * per)
+        self.vis_prob = nn.Linear(d, per)
+        self.contact_prob = nn.Linear(d, per)
+        self.floor_contact_prob = nn.Linear(d, per)
+
+    def forward(self, memory_bdhw: torch.Tensor, pos_1nd: torch.Tensor) -> MammaNetOutput:
+        B = memory_bdhw.shape[0]
+        memory = memory_bdhw.flatten(2).permute(2, 0, 1)  # (N, B, D)
+        pos = pos_1nd.transpose(0, 1)  # (N, 1, D)
+        query_pos = self.query_embed.weight[:, None, :].expand(-1, B, -1)  # (Q, B, D)
+        hs = self.decoder_detr(torch.zeros_like(query_pos), memory, pos, query_pos).transpose(0, 1)  # (B, Q, D)
+        L = self.n_landmarks
+        lm = self.landmarks(hs).reshape(B, L, 3)
+        return MammaNetOutput(
+            xy=lm[..., :2], log_sigma=lm[..., 2],
+            vis_logit=self.vis_prob(hs).reshape(B, L),
+            contact_logit=self.contact_prob(hs).reshape(B, L),
+            floor_logit=self.floor_contact_prob(hs).reshape(B, L),
+        )
+
+
+# ---- the network ----------------------------------------------------------------------------------
+class MammaNet(nn.Module):
+    """Dense landmark network; ``forward(image, mask)`` -> :class:`MammaNetOutput`.
+
+    image: (B, 3, H, W) float, RGB normalised with ImageNet mean/std (crop.normalise_images);
+    mask: (B, 1, H, W) float {0, 1} of the target person, or None (a zero mask; ignored by
+    configs with ``use_mask = False``).
+    """
+
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        self.cfg = cfg.validate()
+        self.backbone = ViT(cfg)
+        self.decoder = LandmarkDecoder(cfg)
+        self.mask_downscaling = MaskEmbed(cfg) if cfg.use_mask else None
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        for m in self.modules():
+            if isinstance(m, nn.Linear):
+                nn.init.trunc_normal_(m.weight, std=0.02)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+            elif isinstance(m, nn.LayerNorm):
+                nn.init.ones_(m.weight)
+                nn.init.zeros_(m.bias)
+        for mod in self.modules():
+            if isinstance(mod, nn.MultiheadAttention):
+                nn.init.xavier_uniform_(mod.in_proj_weight)
+                nn.init.zeros_(mod.in_proj_bias)
+        nn.init.trunc_normal_(self.backbone.pos_embed, std=0.02)
+        nn.init.normal_(self.decoder.query_embed.weight, std=1.0)
+        # start at the crop centre with sigma = 0.2 crop half-widths
+        last = self.decoder.landmarks.layers[-1]
+        nn.init.zeros_(last.weight)
+        with torch.no_grad():
+            last.bias.view(-1, 3)[:, 2] = math.log(0.2)
+
+    @property
+    def n_landmarks(self) -> int:
+        return self.cfg.n_landmarks
+
+    def features(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        f = self.backbone(image)
+        if self.mask_downscaling is not None:
+            if mask is None:
+                mask = image.new_zeros(image.shape[0], 1, *image.shape[2:])
+            f = f + self.mask_downscaling(mask)
+        return f
+
+    def forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
+        return self.decoder(self.features(image, mask), self.backbone.pos_embed[:, 1:])
+
+
+def build_model(cfg: MammaNetConfig | str, device: str | torch.device = "cpu", **overrides) -> MammaNet:
+    """A MammaNet with random weights from a config or a config name (``"embedded"``)."""
+    from mamma_kit.landmarks.config import get_config
+
+    if isinstance(cfg, str):
+        cfg = get_config(cfg, **overrides)
+    return MammaNet(cfg).to(device)
+
+
+def state_dict_shapes(cfg: MammaNetConfig | str) -> list[tuple[str, tuple[int, ...]]]:
+    """(name, shape) of every state-dict tensor, without allocating the weights."""
+    with torch.device("meta"):
+        model = build_model(cfg, device="meta")
+    return [(k, tuple(v.shape)) for k, v in model.state_dict().items()]
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
