@@ -66,6 +66,38 @@ class Microphone:
 
 
 @dataclass
+class Ambient:
+    """A continuous sound common to all microphones: music from a loudspeaker at ``position``
+    (a new chord of three tones every ``note_s`` seconds, soft 15 ms attacks so the notes are
+    not mistaken for claps). ``level``: rms at 1 m."""
+    position: tuple[float, float, float] = (6.0, 0.0, 1.2)
+    level: float = 0.03
+    note_s: float = 0.2
+    seed: int = 7
+
+
+def ambient_signal(t_emit: np.ndarray, amb: Ambient) -> np.ndarray:
+    """The loudspeaker's output at emission times ``t_emit`` (s, reference clock), evaluated
+    analytically so every microphone's delay and clock are exact."""
+    t = np.asarray(t_emit, float)
+    k = np.floor(t / amb.note_s).astype(np.int64)
+    # pitches from a hash of the note index, so they do not depend on the range asked for
+    f = np.stack([_note_freq(k, amb.seed, j) for j in range(3)], 1)
+    tau = t - k * amb.note_s
+    env = np.minimum(tau / 0.015, 1.0) * np.exp(-tau / (0.6 * amb.note_s))
+    y = np.sum(np.sin(2 * np.pi * f * t[:, None]), axis=1) * env
+    return (amb.level * y / 0.9).astype(np.float64)
+
+
+def _note_freq(k: np.ndarray, seed: int, j: int) -> np.ndarray:
+    """A pseudo-random pitch (150-2500 Hz, log-uniform) for note k, voice j: a hash of (k, j)."""
+    h = (k.astype(np.uint64) * np.uint64(2654435761) + np.uint64(seed * 97 + j * 7919)) % np.uint64(1 << 31)
+    h = (h * np.uint64(1103515245) + np.uint64(12345)) % np.uint64(1 << 31)
+    u = h.astype(float) / float(1 << 31)
+    return 150.0 * (2500.0 / 150.0) ** u
+
+
+@dataclass
 class Reverb:
     """Room impulse response parameters (drawn independently for every microphone).
 
@@ -282,7 +314,8 @@ def arrival_times(mics: Mapping[str, Microphone], claps: Sequence[Clap],
 def render_camera_audio(mics: Mapping[str, Microphone], claps: Sequence[Clap] = (), *,
                         sample_rate: int = 48000, snr_db: float = 10.0, reverb: "str | Reverb | None" = "weak",
                         ltc: LtcSpec | None = None, n_channels: int | None = None, seed: int = 0,
-                        speed_of_sound: float = SPEED_OF_SOUND) -> dict[str, tuple[np.ndarray, float]]:
+                        speed_of_sound: float = SPEED_OF_SOUND, ambient: Ambient | None = None
+                        ) -> dict[str, tuple[np.ndarray, float]]:
     """Render each camera's audio track.
 
     mics: {camera: Microphone(position, clock, duration_s, audio_start_s)}.
@@ -291,6 +324,7 @@ def render_camera_audio(mics: Mapping[str, Microphone], claps: Sequence[Clap] = 
     microphone (the loudest clap at that microphone sets the noise level).
     ltc: an LTC generator recorded on channel ``ltc.channel`` (claps and noise go on channel 0;
     other channels get the clap sound too). n_channels defaults to 1, or ltc.channel + 1.
+    ambient: optional music from a loudspeaker, heard by every microphone (delay, 1/r, reverb).
     Returns {camera: (samples (N, C) float32 in [-1, 1], start_s)}.
     """
     rv = Reverb.preset(reverb)
@@ -324,6 +358,15 @@ def render_camera_audio(mics: Mapping[str, Microphone], claps: Sequence[Clap] = 
             y = np.convolve(w, h)
             pos = (arrivals[name][k] - m.audio_start_s) * sr - pad
             _add_frac(acoustic, y, pos, gain)
+        if ambient is not None:
+            t_ref = m.clock.to_ref(m.audio_start_s + np.arange(n) / sr)
+            d_a = max(float(np.linalg.norm(np.subtract(ambient.position, m.position))), 0.3)
+            img = np.array(ambient.position, float) * [1, 1, -1]
+            d_img = float(np.linalg.norm(img - np.asarray(m.position, float)))
+            h = room_impulse_response(sr, rv, rng, ground_delay_s=(d_img - d_a) / speed_of_sound,
+                                      ground_gain=d_a / max(d_img, 1e-9))
+            music = ambient_signal(t_ref - d_a / speed_of_sound, ambient) / d_a
+            acoustic += signal.fftconvolve(music, h)[:n]
         noise_rms = (max(burst_rms) if burst_rms else 0.05) / 10 ** (snr_db / 20)
         acoustic += rng.standard_normal(n) * noise_rms
         x = np.repeat(acoustic[:, None], n_channels, axis=1)
@@ -351,7 +394,7 @@ def ltc_frame_starts(mic: Microphone, spec: LtcSpec, shift_s: float = 0.0) -> tu
     return n_start + k, mic.clock.to_cam(t_ref)
 
 
-__all__ = ["SPEED_OF_SOUND", "Clap", "Microphone", "Reverb", "LtcSpec", "clap_waveform", "room_impulse_response",
+__all__ = ["SPEED_OF_SOUND", "Clap", "Microphone", "Reverb", "LtcSpec", "Ambient", "ambient_signal", "clap_waveform", "room_impulse_response",
            "ltc_frame_bits", "render_ltc", "arrival_times", "render_camera_audio", "ltc_frame_starts"]
 
 
@@ -364,7 +407,7 @@ def write_sync_workspace(root, *, n_cameras: int = 3, duration_s: float = 20.0, 
                          reverb: "str | Reverb | None" = "weak", ltc: LtcSpec | None = None,
                          audio_codec: str = "aac", timecode: bool = False, radius: float = 4.5,
                          clap_positions_known: bool = True, vfr_jitter: float = 0.2, seed: int = 0,
-                         audio: bool = True) -> dict:
+                         audio: bool = True, ambient: Ambient | None = None) -> dict:
     """Write a capture workspace whose cameras hear claps (and LTC): videos/<cam>.mp4 (.mov for
     PCM) with H.264 frames at each camera's clock (variable frame rate: each interval jittered
     by +-vfr_jitter of a frame), the rendered audio (AAC by default), capture.toml,
@@ -411,7 +454,7 @@ def write_sync_workspace(root, *, n_cameras: int = 3, duration_s: float = 20.0, 
     claps = [Clap(float(t), tuple(rng.uniform([-1.0, -1.0, 1.0], [1.0, 1.0, 1.6]))) for t in clap_times]
     rendered: dict = {}
     if audio:
-        rendered = render_camera_audio(mics, claps, snr_db=snr_db, reverb=reverb, ltc=ltc, seed=seed)
+        rendered = render_camera_audio(mics, claps, snr_db=snr_db, reverb=reverb, ltc=ltc, seed=seed, ambient=ambient)
     (root / "videos").mkdir(parents=True, exist_ok=True)
     ext = ".mov" if audio_codec.startswith("pcm") else ".mp4"
     videos, frame_times = {}, {}
