@@ -194,3 +194,14 @@ def test_late_audio_start_keeps_sample_time(tmp_path, sr):
         w.write_audio(x, start_s=0.03)
     a = read_audio(p)
     assert abs(a.start_s * sr + np.argmax(np.abs(a.mono())) - (round(0.03 * sr) + sr + 321)) <= 1
+
+
+def test_tmcd_that_disagrees_with_claps_warns(cli, tmp_path):
+    write_sync_workspace(tmp_path, n_cameras=2, duration_s=5, fps=10, clap_times=[2.0], clocks=CLOCKS3[:2],
+                         timecode=True, timecode_shift_s={"cam1": 0.5}, seed=11)
+    r = cli("sync", tmp_path, "--json", "--no-plots")
+    assert r.code == 0, r
+    out = json.loads(r.out)
+    assert out["method"] == "clap"
+    assert any("cam1: tmcd and clap disagree by" in w for w in out["warnings"]), out["warnings"]
+    assert "warning:" in r.err

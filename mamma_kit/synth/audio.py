@@ -407,7 +407,8 @@ def write_sync_workspace(root, *, n_cameras: int = 3, duration_s: float = 20.0, 
                          reverb: "str | Reverb | None" = "weak", ltc: LtcSpec | None = None,
                          audio_codec: str = "aac", timecode: bool = False, radius: float = 4.5,
                          clap_positions_known: bool = True, vfr_jitter: float = 0.2, seed: int = 0,
-                         audio: bool = True, ambient: Ambient | None = None) -> dict:
+                         audio: bool = True, ambient: Ambient | None = None,
+                         timecode_shift_s: Mapping[str, float] | None = None) -> dict:
     """Write a capture workspace whose cameras hear claps (and LTC): videos/<cam>.mp4 (.mov for
     PCM) with H.264 frames at each camera's clock (variable frame rate: each interval jittered
     by +-vfr_jitter of a frame), the rendered audio (AAC by default), capture.toml,
@@ -467,6 +468,7 @@ def write_sync_workspace(root, *, n_cameras: int = 3, duration_s: float = 20.0, 
         tc = None
         if timecode:
             t0_ref = float(clocks[i].to_ref(ts[0]))
+            t0_ref += (timecode_shift_s or {}).get(n, 0.0)  # a camera whose clock was set wrong
             tc = str(frames_to_timecode(int(round((3600.0 + t0_ref) * fps)), fps))
         path = root / "videos" / f"{n}{ext}"
         kw = {}
