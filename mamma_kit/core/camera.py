@@ -87,9 +87,10 @@ def undistort_normalized(xyd_n2: np.ndarray, model: str, dist: np.ndarray, iters
         return xyd.copy()
     xy = xyd.copy()
     eps = 1e-7
-    for _ in range(iters):
+    for it in range(iters):
         f = distort_normalized(xy, model, dist) - xyd
-        if np.nanmax(np.abs(f), initial=0.0) < 1e-15:
+        # 1e-14 in normalised units is ~1e-11 px: far below anything that matters
+        if np.nanmax(np.abs(f), initial=0.0) < 1e-14:
             break
         fx = (distort_normalized(xy + [eps, 0], model, dist) - xyd - f) / eps
         fy = (distort_normalized(xy + [0, eps], model, dist) - xyd - f) / eps
