@@ -279,7 +279,10 @@ def bake(out: Path, num_samples: int = NUM_SAMPLES, log=print) -> dict:
     log(f"J_regressor: joint error mean {1e3 * j_err.mean():.2f} mm, max {1e3 * j_err.max():.1f} mm "
         f"(worst: {sk.JOINT_NAMES[int(j_err.max(0).argmax())]})")
 
-    v_template = mean
+    # landmarks and parts from the float32 values the file stores, so the loader's FPS on
+    # the file reproduces the baked set exactly
+    v_template = mean.astype(np.float32).astype(np.float64)
+    W = W.astype(np.float32).astype(np.float64)
     vertex_part = vertex_parts_from_weights(W)
     landmarks = landmark_set_fps(v_template, W, vertex_part)
     extra = extra_keypoints(v_template, W_vb, bone_labels, heads[0])
