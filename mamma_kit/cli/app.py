@@ -39,7 +39,7 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
 
 def _register() -> None:
     # Each command module adds its commands to `app`; import order = order in --help.
-    from mamma_kit.cli import calib, demo, doctor, eval  # noqa: F401
+    from mamma_kit.cli import calib, demo, doctor, eval, synth  # noqa: F401
     from mamma_kit.cli import sync  # noqa: F401
     from mamma_kit.cli import body  # noqa: F401
     from mamma_kit.cli import landmarks, train  # noqa: F401
