@@ -202,6 +202,10 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
         try:
             clap_res = _run_clap(media, reference, st["clap"], ltc_channels, clap_positions, mic_positions)
             by_method["clap"] = clap_res.clocks
+            if not clap_res.diagnostics.get("sound_travel_corrected") and len(clap_res.events_t) > 1:
+                warnings.append("clap sound travel not corrected (no clap positions and no calibration): offsets "
+                                "carry up to 2.9 ms per metre between the camera distances, and claps made at "
+                                "different spots bias the drift; clap from one spot, or add calibration.toml")
             for n in names:
                 d = dict(clap_res.camera_diagnostics[n])
                 mine = [o for o in clap_res.observations if reference in (o.i, o.j) and n in (o.i, o.j) and n != reference]
