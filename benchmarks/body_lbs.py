@@ -11,12 +11,13 @@ figure is the body model's own cost. With smplx installed it also times smplx.SM
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
 import torch
 
-from mamma_kit.body.lbs import pose_mesh, pose_restricted
+from mamma_kit.body.lbs import pose_mesh, pose_mesh_np, pose_restricted
 from mamma_kit.body.model import load_body_model
 
 
@@ -67,11 +68,14 @@ def main() -> None:
             pose_restricted(m, p)
 
     print(f"body model {m.name} ({m.num_vertices} vertices), {a.people} people x {a.frames} frames, "
-          f"torch {torch.__version__}, {a.threads} threads; median / best of {a.repeats} runs")
+          f"torch {torch.__version__}, {a.threads} threads, load average {os.getloadavg()[0]:.1f} "
+          f"on {os.cpu_count()} cores; median / best of {a.repeats} runs")
+    p_np = {k: v.detach()[0].numpy() for k, v in p.items()}  # one person's 100 frames, numpy
     rows = [("restricted 512+55, sparse gather, fwd+bwd", restricted(True)),
             ("restricted 512+55, default,  fwd+bwd", restricted(False)),
             ("restricted 512+55, default, fwd only", restricted_fwd),
-            ("full mesh,                 fwd+bwd", full)]
+            ("full mesh,                 fwd+bwd", full),
+            ("full mesh numpy, 1 person x frames, no grad", lambda: pose_mesh_np(m, p_np))]
     for name, fn in rows:
         med, best = _time(fn, a.repeats if "full" not in name else max(3, a.repeats // 4))
         print(f"  {name}: {med:8.2f} ms  (best {best:.2f})")

@@ -108,6 +108,23 @@ def shape_blend(template_n3: torch.Tensor, dirs_n3b: torch.Tensor, coeffs: torch
     return template_n3 + flat.reshape(*coeffs.shape[:-1], N, 3)
 
 
+def _level_plan(parents: np.ndarray) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """Per tree level: joint ids, their parents' ids, and the parents' positions within the
+    previous level (parents of a level all sit in the level before it)."""
+    levels = sk.tree_levels(parents)
+    pos = np.zeros(len(parents), dtype=np.int64)
+    for idx in levels:
+        pos[idx] = np.arange(len(idx))
+    plan = []
+    for idx in levels:
+        par = np.maximum(parents[idx], 0)
+        plan.append((torch.as_tensor(idx), torch.as_tensor(par), torch.as_tensor(pos[par])))
+    return plan
+
+
+_PLANS: dict[bytes, tuple] = {}
+
+
 def forward_kinematics(rot_j33: torch.Tensor, joints_j3: torch.Tensor,
                        parents: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
     """World rotation and position of every joint.
@@ -116,23 +133,29 @@ def forward_kinematics(rot_j33: torch.Tensor, joints_j3: torch.Tensor,
     (broadcastable to rot's leading dims). Returns R (..., J, 3, 3) and p (..., J, 3), the
     posed joint positions (no translation).
 
-    Pointer jumping over the tree: each step composes every joint's partial chain [R | t]
-    with its current ancestor's and doubles the span, so a depth-D tree takes
-    ceil(log2(D + 1)) batched steps over all joints at once (4 for SMPL-X's depth 11),
-    no loop over joints or levels.
+    One batched product per tree level (11 for SMPL-X), no loop over joints. (Pointer
+    jumping, 4 steps over all joints, did 4x the arithmetic and measured 2x slower here.)
     """
+    key = np.asarray(parents).tobytes()
+    if key not in _PLANS:
+        plan = _level_plan(np.asarray(parents))
+        order = torch.as_tensor(np.argsort(np.concatenate([p[0].numpy() for p in plan])))
+        _PLANS[key] = (plan, order)
+    plan, order = _PLANS[key]
     lead = torch.broadcast_shapes(rot_j33.shape[:-3], joints_j3.shape[:-2])
-    J = len(parents)
-    par = np.where(parents < 0, J, parents)  # J = the identity slot
-    j_par = torch.cat([joints_j3, torch.zeros_like(joints_j3[..., :1, :])], -2)[..., par, :]
-    t = joints_j3 - j_par  # a root's offset is its own position
-    T = torch.cat([rot_j33.expand(*lead, J, 3, 3), t.expand(*lead, J, 3).unsqueeze(-1)], -1)  # (..., J, 3, 4)
-    ident = torch.eye(3, 4, dtype=T.dtype, device=T.device).expand(*lead, 1, 3, 4)
-    anc = par.copy()
-    while np.any(anc < J):
-        Ta = torch.cat([T, ident], -3)[..., anc, :, :]
-        T = Ta[..., :3] @ T + torch.cat([torch.zeros_like(Ta[..., :3]), Ta[..., 3:]], -1)
-        anc = np.append(anc, J)[anc]  # the ancestor's ancestor: the span doubles
+    Ts = []  # per level (..., n, 3, 4) world [R | p]
+    for li, (idx, par, pp) in enumerate(plan):
+        R_loc = rot_j33.index_select(-3, idx).expand(*lead, len(idx), 3, 3)
+        if li == 0:
+            p0 = joints_j3.index_select(-2, idx).expand(*lead, len(idx), 3)
+            Ts.append(torch.cat([R_loc, p0.unsqueeze(-1)], -1))
+            continue
+        T_par = Ts[-1].index_select(-3, pp)
+        offset = (joints_j3.index_select(-2, idx) - joints_j3.index_select(-2, par)).expand(*lead, len(idx), 3)
+        # one product per level: R_par @ [R_loc | offset], then add the parent's position
+        T = T_par[..., :3] @ torch.cat([R_loc, offset.unsqueeze(-1)], -1)
+        Ts.append(torch.cat([T[..., :3], T[..., 3:] + T_par[..., 3:]], -1))
+    T = torch.cat(Ts, -3).index_select(-3, order)
     return T[..., :3], T[..., 3]
 
 
