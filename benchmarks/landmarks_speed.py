@@ -65,7 +65,7 @@ def _one(arch: str, threads: int, batch: int, seconds: float, do_train: bool) ->
     res = {"arch": arch, "weights": weights, "parameters": sum(p.numel() for p in loaded.model.parameters()),
            "input_hw": list(cfg.input_hw), "batch": batch, "threads": threads, "crops_per_s": round(e2e, 2),
            "net_only_crops_per_s": round(net, 2), "crop_ms": round(crop_ms, 2)}
-    if do_train:
+    if do_train and not arch.startswith("official"):  # nobody trains ViT-B on a CPU
         from mamma_kit.landmarks.losses import mammanet_loss
         from mamma_kit.landmarks.model import build_model
         from mamma_kit.landmarks import crop as C
@@ -110,7 +110,11 @@ def main() -> None:
         b = a.batch or (2 if archs[0].startswith("official") else 8)
         print(json.dumps(_one(archs[0], a.threads, b, a.seconds, a.train)))
         return
-    print(f"MammaNet speed, {a.threads} torch threads, {a.seconds:.0f} s per measurement")
+    import os
+
+    load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    print(f"MammaNet speed, {a.threads} torch threads, {a.seconds:.0f} s per measurement, "
+          f"load average before: {load} on {os.cpu_count()} cores")
     print(f"command: {' '.join(sys.argv)}")
     for arch in archs:
         cmd = [sys.executable, __file__, "--child", "--arch", arch, "--threads", str(a.threads), "--seconds",
@@ -123,6 +127,8 @@ def main() -> None:
             line += f", training {r['train_samples_per_s']:.2f} samples/s"
         line += f", peak RSS {r['peak_rss_mb']:.0f} MB, weights: {r['weights']}"
         print(line, flush=True)
+    print(f"load average after: {', '.join(f'{v:.1f}' for v in os.getloadavg())} (other work on the machine slows "
+          f"every figure; compare runs at similar load)")
 
 
 if __name__ == "__main__":
