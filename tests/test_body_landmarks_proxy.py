@@ -100,6 +100,8 @@ def test_signed_distance_matches_trimesh_and_gradients(body):
     sd = signed_distance(pt, V, px.faces, px.neighbours)
     assert np.abs(sd.detach().numpy() + ref).max() < 1e-5
     assert 0.2 < (sd < 0).float().mean() < 0.8
+    sd_w = signed_distance(torch.tensor(pts), V, px.faces, px.neighbours, sign="winding")
+    assert torch.equal(torch.sign(sd_w), torch.sign(sd.detach()))
     sd.sum().backward()
     far = sd.detach().abs() > 1e-3
     gn = pt.grad[far].norm(dim=-1)
@@ -110,3 +112,4 @@ def test_signed_distance_matches_trimesh_and_gradients(body):
     assert torch.isfinite(Vg.grad).all() and Vg.grad.abs().sum() > 0
     sd_pn = signed_distance(torch.tensor(pts), V, px.faces, px.neighbours, sign="pseudonormal")
     assert (torch.sign(sd_pn) == torch.sign(sd.detach())).float().mean() > 0.98
+    assert np.array_equal(body.vertex_parts, body.vertex_part) and len(body.part_names) == 16

@@ -64,6 +64,7 @@ class LandmarkSet:
 @dataclass(eq=False)
 class BodyModel:
     """A body model in SMPL-X layout, float32 torch tensors on the CPU (numpy views via ``.np``).
+    load_body_model caches and shares instances: treat the tensors as read-only.
 
     V vertices, F faces, B = 16 shape components, E expression components (10 or 0),
     K skinning weights kept per vertex, J = 55 joints.
@@ -143,6 +144,16 @@ class BodyModel:
     def landmark_parts(self) -> np.ndarray:
         """(L,) int64 landmark part labels (indices into skeleton.LANDMARK_PART_NAMES)."""
         return self.landmarks.part
+
+    @property
+    def vertex_parts(self) -> np.ndarray:
+        """(V,) int64 body part of every vertex, indices into ``part_names``."""
+        return self.vertex_part
+
+    @property
+    def part_names(self) -> list[str]:
+        """Names of the per-vertex parts (skeleton.PART_NAMES)."""
+        return list(sk.PART_NAMES)
 
     @property
     def levels(self) -> list[np.ndarray]:
