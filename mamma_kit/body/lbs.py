@@ -308,21 +308,35 @@ def pose_mesh(model, params: Mapping[str, object]) -> tuple[torch.Tensor, torch.
 
 
 def pose_mesh_np(model, params: Mapping[str, object], chunk: int = 64) -> tuple[np.ndarray, np.ndarray]:
-    """No-grad full mesh for many frames: params as numpy with leading dims (T,) (or any);
-    returns float32 verts (*lead, V, 3) and joints (*lead, 55, 3), computed ``chunk`` frames
-    at a time over the first leading dim to bound memory."""
+    """No-grad full mesh for many frames: params as numpy (or tensors) with any leading dims;
+    returns float32 verts (*lead, V, 3) and joints (*lead, 55, 3).
+
+    Frames are grouped by their shape (betas, expression) rows, so per-frame copies of a few
+    people's betas still take the fast shared-rest-mesh path, and processed ``chunk`` frames
+    at a time to bound memory.
+    """
     with torch.no_grad():
         p, lead = prepare_params(params)
         if len(lead) == 0:
             v, j = _pose(model, None, p, sparse=False)
             return v.numpy(), j.numpy()
-        vs, js = [], []
-        for s in range(0, lead[0], chunk):
-            sub = {}
-            for k, t in p.items():
-                t = t.expand(*lead, t.shape[-1]) if t.ndim - 1 == len(lead) else t
-                sub[k] = t[s:s + chunk] if t.ndim - 1 == len(lead) else t
-            v, j = _pose(model, None, sub, sparse=False)
-            vs.append(v.numpy())
-            js.append(j.numpy())
-        return np.concatenate(vs), np.concatenate(js)
+        n = math.prod(lead)
+        flat = {k: t.expand(*lead, t.shape[-1]).reshape(n, t.shape[-1]) for k, t in p.items()}
+        shape_keys = [k for k in ("betas", "expression") if k in flat]
+        if shape_keys:
+            rows = torch.cat([flat[k] for k in shape_keys], -1).numpy()
+            uniq, group = np.unique(rows, axis=0, return_inverse=True)
+        else:
+            uniq, group = np.zeros((1, 0)), np.zeros(n, dtype=np.int64)
+        V = model.num_vertices
+        verts = np.empty((n, V, 3), np.float32)
+        joints = np.empty((n, sk.NUM_JOINTS, 3), np.float32)
+        for g in range(len(uniq)):  # one group per distinct body shape (a few people)
+            ids = np.flatnonzero(group.reshape(-1) == g)
+            for s in range(0, len(ids), chunk):
+                sel = torch.as_tensor(ids[s:s + chunk])
+                sub = {k: (t[sel[:1]][0] if k in shape_keys else t[sel]) for k, t in flat.items()}
+                v, j = _pose(model, None, sub, sparse=False)
+                verts[ids[s:s + chunk]] = v.numpy()
+                joints[ids[s:s + chunk]] = j.numpy()
+        return verts.reshape(*lead, V, 3), joints.reshape(*lead, sk.NUM_JOINTS, 3)
