@@ -1,0 +1,259 @@
+"""ChArUco detection in board videos, and finding out what board a video really shows.
+
+Detections of one camera are dense arrays over its sampled frames: ``xy_fn2`` (F, N, 2)
+pixel positions of the N chessboard corners with NaN where a corner was not found, and
+``times_f`` (F,) the frames' timestamps on the camera's own clock. Large frames are
+searched for markers at a reduced size and the corners refined at full resolution
+(cornerSubPix), so 4K phone videos cost about as much as 1080p ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mamma_kit.calibration.board import DICTIONARIES, BoardSpec
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.log import track
+
+MIN_CORNERS = 6  # a view needs this many corners to be used
+
+
+@dataclass
+class Detections:
+    camera: str
+    video: str
+    size: tuple[int, int]  # width, height of the stored frames
+    times_f: np.ndarray  # (F,) camera-clock seconds of the sampled frames
+    xy_fn2: np.ndarray  # (F, N, 2) corner pixels, NaN where not detected
+    n_markers_f: np.ndarray  # (F,) ArUco markers found per sampled frame
+    rotation_deg: int = 0  # display rotation stored in the file (frames are used as stored)
+    frame_step: int = 1
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_corners_f(self) -> np.ndarray:
+        return np.isfinite(self.xy_fn2[..., 0]).sum(1)
+
+    def usable(self, spec: BoardSpec, min_corners: int = MIN_CORNERS) -> np.ndarray:
+        """Frame indices with enough corners spanning at least two rows and two columns."""
+        ok = self.n_corners_f >= min_corners
+        n = spec.squares_x - 1
+        ids = np.arange(spec.n_corners)
+        col, row = ids % n, ids // n
+        seen = np.isfinite(self.xy_fn2[..., 0])
+        # number of distinct columns / rows among the seen corners (vectorised over frames)
+        cols = (seen[:, :, None] & (col[None, :, None] == np.arange(n)[None, None])).any(1).sum(1)
+        rows = (seen[:, :, None] & (row[None, :, None] == np.arange(spec.squares_y - 1)[None, None])).any(1).sum(1)
+        return np.nonzero(ok & (cols >= 2) & (rows >= 2))[0]
+
+    def to_npz_dict(self) -> dict:
+        return {"times_f": self.times_f, "xy_fn2": self.xy_fn2, "n_markers_f": self.n_markers_f,
+                "size": np.array(self.size), "rotation_deg": np.array(self.rotation_deg),
+                "frame_step": np.array(self.frame_step)}
+
+
+class BoardFinder:
+    """Detects one board spec in grey images; marker search on a reduced image when large."""
+
+    def __init__(self, spec: BoardSpec, max_detect_width: int = 2000, inverted: bool | None = None):
+        self.spec = spec
+        self.detector = spec.detector(inverted=inverted)
+        self.max_w = int(max_detect_width)
+
+    def detect(self, grey: np.ndarray) -> tuple[np.ndarray, int]:
+        """-> (xy_n2 with NaN rows for missing corners, number of markers found)."""
+        n = self.spec.n_corners
+        out = np.full((n, 2), np.nan)
+        h, w = grey.shape[:2]
+        scale = 1.0
+        img = grey
+        if max(w, h) > self.max_w:
+            scale = self.max_w / max(w, h)
+            img = cv2.resize(grey, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+        cc, ci, mc, mi = self.detector.detectBoard(img)
+        n_markers = 0 if mi is None else len(mi)
+        if ci is None or len(ci) == 0:
+            return out, n_markers
+        ids = ci.ravel().astype(int)
+        xy = cc.reshape(-1, 2).astype(np.float64)
+        keep = (ids >= 0) & (ids < n)
+        ids, xy = ids[keep], xy[keep]
+        if scale != 1.0:
+            xy = (xy + 0.5) / scale - 0.5
+            xy = self._refine(grey, ids, xy)
+        out[ids] = xy
+        return out, n_markers
+
+    def _refine(self, grey: np.ndarray, ids: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """cornerSubPix at full resolution with a window a fifth of the local square size."""
+        if len(xy) < 2:
+            return xy
+        d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
+        np.fill_diagonal(d, np.inf)
+        sq = float(np.median(d.min(1)))
+        # neighbouring corner ids are one square apart: bound by the nearest-corner distance
+        win = int(np.clip(0.2 * sq, 2, 15))
+        pts = xy.astype(np.float32).reshape(-1, 1, 2)
+        cv2.cornerSubPix(grey, pts, (win, win), (-1, -1),
+                         (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3))
+        return pts.reshape(-1, 2).astype(np.float64)
+
+
+def frame_step_for(nominal_fps: float, max_fps: float | None) -> int:
+    if not max_fps or max_fps <= 0 or nominal_fps <= 0:
+        return 1
+    return max(1, int(round(nominal_fps / max_fps)))
+
+
+def detect_video(path: str | Path, spec: BoardSpec, camera: str | None = None, *, max_fps: float | None = 10.0,
+                 max_detect_width: int = 2000, progress: bool = True) -> Detections:
+    """Detect the board in every ``step``-th frame of a video (about ``max_fps`` per second)."""
+    from mamma_kit.video.reader import VideoReader
+
+    path = Path(path)
+    r = VideoReader(path)
+    info = r.info
+    step = frame_step_for(info.nominal_fps, max_fps)
+    finder = BoardFinder(spec, max_detect_width)
+    n_sel = (info.n_frames + step - 1) // step
+    times = np.full(n_sel, np.nan)
+    xy = np.full((n_sel, spec.n_corners, 2), np.nan)
+    nm = np.zeros(n_sel, int)
+    k = 0
+    frames = r.frames(fmt="gray")
+    it = track(frames, f"detect {camera or path.stem}", total=info.n_frames) if progress else frames
+    for i, (t, grey) in enumerate(it):
+        if i % step or k >= n_sel:
+            continue
+        times[k] = t
+        xy[k], nm[k] = finder.detect(grey)
+        k += 1
+    keep = np.isfinite(times)
+    return Detections(camera or path.stem, str(path), (info.width, info.height), times[keep], xy[keep], nm[keep],
+                      info.rotation_deg, step)
+
+
+# ---- what board does the video show? ------------------------------------------------------
+_FAMILIES = ["4X4_1000", "5X5_1000", "6X6_1000", "7X7_1000", "ARUCO_ORIGINAL", "APRILTAG_16H5", "APRILTAG_25H9",
+             "APRILTAG_36H10", "APRILTAG_36H11", "ARUCO_MIP_36H12"]
+
+
+def _sample_frames(path: Path, n: int) -> list[np.ndarray]:
+    from mamma_kit.video.reader import VideoReader
+
+    r = VideoReader(path)
+    idx = np.unique(np.linspace(0, r.n_frames - 1, min(n, r.n_frames)).round().astype(int))
+    return [img for _, _, img in r.read_indices(idx, fmt="gray")]
+
+
+def _smallest_dictionary(family: str, max_id: int) -> str:
+    """The smallest predefined dictionary of a family that holds marker id ``max_id``."""
+    if family.endswith("_1000"):
+        base = family[:-5]
+        for size in (50, 100, 250, 1000):
+            if max_id < size:
+                return f"DICT_{base}_{size}"
+    return "DICT_" + family
+
+
+def _marker_survey(frames: list[np.ndarray]) -> dict:
+    """Markers per dictionary family and polarity over sample frames."""
+    out = {}
+    for fam in _FAMILIES:
+        d = cv2.aruco.getPredefinedDictionary(DICTIONARIES[fam])
+        for inv in (False, True):
+            p = cv2.aruco.DetectorParameters()
+            p.detectInvertedMarker = inv
+            det = cv2.aruco.ArucoDetector(d, p)
+            n, ids = 0, []
+            for g in frames:
+                _, mi, _ = det.detectMarkers(g if not inv else g)
+                if mi is not None:
+                    n += len(mi)
+                    ids += mi.ravel().tolist()
+            out[(fam, inv)] = (n, ids)
+    # "inverted" detection finds both polarities: the inverted-only count is the difference
+    res = {}
+    for fam in _FAMILIES:
+        n_norm, ids_norm = out[(fam, False)]
+        n_any, ids_any = out[(fam, True)]
+        res[fam] = {"normal": n_norm, "inverted": n_any - n_norm, "ids": ids_any}
+    return res
+
+
+def _corner_score(spec: BoardSpec, frames: list[np.ndarray]) -> int:
+    """Corners found over the frames that agree with a homography of the board (so a wrong
+    layout that still yields some corners scores low)."""
+    finder = BoardFinder(spec)
+    total = 0
+    for g in frames:
+        xy, _ = finder.detect(g)
+        ok = np.isfinite(xy[:, 0])
+        if ok.sum() < 4:
+            continue
+        obj = spec.corners_b3[ok, :2]
+        H, inl = cv2.findHomography(obj, xy[ok], cv2.RANSAC, max(2.0, 0.01 * max(g.shape)))
+        total += int(inl.sum()) if inl is not None else 0
+    return total
+
+
+def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int = 12) -> UserError:
+    """Find which board variant a video shows and return the UserError that says so.
+
+    Tries other dictionaries (by surveying markers of every family), the legacy layout,
+    inverted colours and swapped rows/columns, and names the variant that matches."""
+    path = Path(path)
+    frames = _sample_frames(path, n_frames)
+    where = f"camera {camera}: no ChArUco board found in {len(frames)} sampled frames of {path.name} " \
+            f"(spec {spec.describe()})"
+    survey = _marker_survey(frames)
+    fam, info = max(survey.items(), key=lambda kv: kv[1]["normal"] + kv[1]["inverted"])
+    n_found = info["normal"] + info["inverted"]
+    if n_found == 0:
+        return UserError(f"{where}; no ArUco markers of any dictionary are visible",
+                         "check that this video shows the board, in focus and close enough that a square spans "
+                         "at least about 15 pixels")
+    inverted = info["inverted"] > info["normal"]
+    dictionary = _smallest_dictionary(fam, max(info["ids"]))
+    # a dictionary of the same family but a smaller size contains the same first markers
+    same_family = spec.dictionary.removeprefix("DICT_").rsplit("_", 1)[0] == fam.rsplit("_", 1)[0] \
+        if fam.endswith("_1000") else spec.dictionary == "DICT_" + fam
+    if same_family and max(info["ids"]) < cv2.aruco.getPredefinedDictionary(
+            DICTIONARIES[spec.dictionary[5:]]).bytesList.shape[0]:
+        dictionary = spec.dictionary
+    base = spec.with_(dictionary=dictionary, inverted=inverted)
+    variants = []
+    for swap in (False, True):
+        for legacy in (False, True):
+            v = base.with_(legacy=legacy)
+            if swap:
+                v = v.with_(squares_x=spec.squares_y, squares_y=spec.squares_x)
+            try:
+                variants.append((v, _corner_score(v, frames)))
+            except UserError:
+                continue
+    best, score = max(variants, key=lambda vs: vs[1])
+    changes = []
+    if best.dictionary != spec.dictionary:
+        changes.append(f'dictionary = "{best.dictionary}"')
+    if best.inverted != spec.inverted:
+        changes.append(f"inverted = {'true' if best.inverted else 'false'}")
+    if best.legacy != spec.legacy:
+        changes.append(f"legacy = {'true' if best.legacy else 'false'}")
+    if best.squares_x != spec.squares_x:
+        changes.append(f"squares_x = {best.squares_x}, squares_y = {best.squares_y} (rows and columns swapped)")
+    if score == 0 or not changes:
+        return UserError(f"{where}; {n_found} {fam} markers are visible but no variant of the board "
+                         f"(dictionary, legacy layout, inverted, swapped rows/columns) yields chessboard corners",
+                         "check squares_x, squares_y and the marker ids of the printed board, or print it again "
+                         "with `mamma-kit board`")
+    what = {"dictionary": "another dictionary", "inverted": "inverted colours", "legacy": "the legacy layout",
+            "squares_x": "swapped rows/columns"}
+    kinds = [what[c.split(" ")[0]] for c in changes]
+    return UserError(f"{where}; the video shows a board with {', '.join(kinds)}: it matches "
+                     f"{', '.join(changes)} ({score} corners found)",
+                     f"set {'; '.join(changes)} in the board spec and run again")

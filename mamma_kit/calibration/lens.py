@@ -1,0 +1,37 @@
+"""Lens helpers the calibration (and the synthetic board renderer) share."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from mamma_kit.core.camera import Camera, distort_normalized
+
+
+def undistort_exact(cam: Camera, xy_n2: np.ndarray) -> np.ndarray:
+    """Distorted pixels -> undistorted normalised coordinates, to ~1e-12.
+
+    OpenCV's iterative undistortion gives the start; Newton steps with a numeric Jacobian
+    on core's own lens model (the one that projects) finish it, so rendering and
+    projection agree exactly."""
+    xy = np.asarray(xy_n2, np.float64).reshape(-1, 2)
+    xd = cam.pixels_to_normalized(xy)
+    if not np.any(cam.dist):
+        return xd
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    if cam.model == "fisheye":
+        x = cv2.fisheye.undistortPoints(xd.reshape(-1, 1, 2), np.eye(3), cam.dist.reshape(4), criteria=crit)
+    else:
+        x = cv2.undistortPoints(xd.reshape(-1, 1, 2), np.eye(3), cam.dist, None, None, None, crit)
+    x = x.reshape(-1, 2).astype(np.float64)
+    eps = 1e-7
+    for _ in range(4):
+        f = distort_normalized(x, cam.model, cam.dist) - xd
+        fx = (distort_normalized(x + [eps, 0], cam.model, cam.dist) - xd - f) / eps
+        fy = (distort_normalized(x + [0, eps], cam.model, cam.dist) - xd - f) / eps
+        det = fx[:, 0] * fy[:, 1] - fy[:, 0] * fx[:, 1]
+        det = np.where(np.abs(det) < 1e-12, 1e-12, det)
+        dx = (fy[:, 1] * f[:, 0] - fy[:, 0] * f[:, 1]) / det
+        dy = (-fx[:, 1] * f[:, 0] + fx[:, 0] * f[:, 1]) / det
+        x = x - np.stack([dx, dy], -1)
+    return x

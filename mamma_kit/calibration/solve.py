@@ -1,0 +1,348 @@
+"""`mamma-kit calibrate`: board videos -> calibrated rig with diagnostics.
+
+Steps: detect the board in every camera's video (and, if a camera shows none, find out
+which board it does show); per-camera intrinsics from selected views; still-board runs
+matched across cameras (clock offsets found from the runs themselves unless a timing
+model is given); a pose graph for initial extrinsics; bundle adjustment over all cameras,
+still-board events and intrinsic views; the world frame from the board on the floor.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mamma_kit.calibration import association as assoc
+from mamma_kit.calibration.board import BoardSpec
+from mamma_kit.calibration.bundle import (BundleResult, bundle_adjust, check_connected, event_poses,
+                                          init_extrinsics, pair_graph)
+from mamma_kit.calibration.detect import MIN_CORNERS, Detections, detect_video, diagnose_board
+from mamma_kit.calibration.intrinsics import IntrinsicResult, calibrate_camera, cross_validate, tilt_of
+from mamma_kit.calibration.world import find_floor, up_guess, world_from_board, world_from_camera
+from mamma_kit.core import log
+from mamma_kit.core.camera import Camera, Rig, rotvec
+from mamma_kit.core.clock import ClockModel
+from mamma_kit.core.errors import UserError
+
+MIN_VIEWS = 4
+
+
+@dataclass
+class Settings:
+    model: str = "radtan"
+    max_fps: float = 10.0  # detection rate (frames per second of video)
+    max_views: int = 40  # views per camera for intrinsics
+    still_px: float = 0.6
+    sync_tol_s: float = 0.001  # with a timing model: moving frames this close in time are one pose
+    offset_margin_s: float = 0.15  # still runs are shrunk by this on both ends when offsets are estimated
+    max_offset_s: float | None = None  # bound on |clock offset| between cameras (None: any)
+    min_shared: int = 2  # still boards a camera pair must share to count as connected
+    floor: bool = True  # look for the board on the floor
+    cross_validation: bool = True
+    max_detect_width: int = 2000
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if v is not None}
+
+
+@dataclass
+class CalibrationResult:
+    rig: Rig  # world frame
+    diagnostics: dict
+    camera_diagnostics: dict[str, dict]
+    detections: dict[str, Detections]
+    intrinsics: dict[str, IntrinsicResult]
+    events: list
+    bundle: BundleResult
+    cross_validation: dict[str, dict | None]
+    world_R: np.ndarray  # X_world = world_R X_rig + world_t
+    world_t: np.ndarray
+    warnings: list[str] = field(default_factory=list)
+    pairs: dict = field(default_factory=dict)  # (camera a, camera b) -> shared still boards
+
+
+def _scaled_intrinsics(cam: Camera, size: tuple[int, int], name: str, src: str) -> Camera:
+    if tuple(cam.size) == tuple(size):
+        return cam.copy(name=name)
+    sx, sy = size[0] / cam.size[0], size[1] / cam.size[1]
+    if abs(sx - sy) > 1e-3 * max(sx, sy):
+        if cam.size == (size[1], size[0]):
+            raise UserError(f"{src}: camera {name} was calibrated at {cam.size[0]}x{cam.size[1]} but its board video "
+                            f"is {size[0]}x{size[1]} (rotated by 90 degrees)",
+                            "calibrate the intrinsics from frames stored in the same orientation, or drop "
+                            "--intrinsics for this camera")
+        raise UserError(f"{src}: camera {name} was calibrated at {cam.size[0]}x{cam.size[1]}, its board video is "
+                        f"{size[0]}x{size[1]} (another aspect ratio)", "drop --intrinsics or use a matching file")
+    log.info(f"intrinsics of {name}: scaled from {cam.size[0]}x{cam.size[1]} to {size[0]}x{size[1]}")
+    return cam.scaled(sx, sy).copy(name=name)
+
+
+def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | None = None, *,
+              intrinsics: Rig | None = None, intrinsics_src: str = "--intrinsics",
+              clocks: dict[str, ClockModel] | None = None, progress: bool = True,
+              detections: dict[str, Detections] | None = None) -> CalibrationResult:
+    """Calibrate a rig from one board video per camera (see the module docstring)."""
+    st = settings or Settings()
+    names = list(videos)
+    t_start = time.perf_counter()
+    warnings: list[str] = []
+    if len(names) < 1:
+        raise UserError("no board videos given", "pass one board video per camera")
+    if clocks is not None:
+        missing = [n for n in names if n not in clocks]
+        if missing:
+            raise UserError(f"the timing model has no clock for {', '.join(missing)}",
+                            "sync these board videos first or calibrate without a timing model")
+    # 1. detection
+    dets: dict[str, Detections] = dict(detections or {})
+    for n in names:
+        if n not in dets:
+            log.info(f"detecting the board in {videos[n]}")
+            dets[n] = detect_video(videos[n], spec, n, max_fps=st.max_fps, max_detect_width=st.max_detect_width,
+                                   progress=progress)
+    for n in names:
+        d = dets[n]
+        if len(d.usable(spec)) == 0:
+            raise diagnose_board(videos[n], spec, n)
+    t_detect = time.perf_counter() - t_start
+    # 2. intrinsics
+    intr: dict[str, IntrinsicResult] = {}
+    fixed: set[str] = set()
+    for n in names:
+        fix = None
+        if intrinsics is not None and n in intrinsics:
+            fix = _scaled_intrinsics(intrinsics[n], dets[n].size, n, intrinsics_src)
+            if fix.model != st.model:
+                log.info(f"{n}: using the {fix.model} lens model of {intrinsics_src}")
+            fixed.add(n)
+        elif intrinsics is not None:
+            log.warn(f"{intrinsics_src} has no camera {n}: calibrating its intrinsics")
+        intr[n] = calibrate_camera(dets[n], spec, st.model, st.max_views, fixed=fix, min_views=MIN_VIEWS)
+        log.info(f"{n}: intrinsics rms {intr[n].rms_px:.3f} px from {len(intr[n].views)} views")
+    models = {intr[n].camera.model for n in names}
+    if len(models) > 1:
+        raise UserError(f"cameras use different lens models ({', '.join(sorted(models))})",
+                        f"use --model {intr[names[0]].camera.model} or an --intrinsics file with one model")
+    cams0 = {n: intr[n].camera for n in names}
+    # 3. still runs and offsets
+    runs = {n: assoc.still_runs(dets[n], st.still_px) for n in names}
+    for n in names:
+        assoc.pose_runs(runs[n], cams0[n], spec)
+    offsets: dict[str, float] = {}
+    pair_off: dict[tuple[str, str], tuple[float, int]] = {}
+    if clocks is None and len(names) > 1:
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                r = assoc.pair_offset(runs[a], runs[b], st.max_offset_s)
+                if r is not None and r[1] >= st.min_shared:
+                    pair_off[(a, b)] = (r[0], r[1])
+        comps = assoc.components(names, list(pair_off))
+        main = max(comps, key=len)
+        reference = main[0]
+        offsets, _ = assoc.solve_offsets(names, pair_off, reference)
+    elif clocks is None:
+        offsets = {names[0]: 0.0}
+    margin = st.offset_margin_s if clocks is None else 0.0
+    events = assoc.build_events(dets, runs, offsets, clocks, margin)
+    if clocks is not None and st.sync_tol_s > 0:
+        used = {n: set() for n in names}
+        for ev in events:
+            for c, fr in ev.frames.items():
+                used[c] |= set(int(f) for f in fr)
+        events += assoc.sync_events(dets, clocks, used, st.sync_tol_s)
+    # single-camera intrinsic views not already inside a still run
+    in_runs = {n: set(int(f) for r in runs[n] for f in r.frames) for n in names}
+    for n in names:
+        for f in intr[n].views:
+            if int(f) not in in_runs[n]:
+                events.append(assoc.Event("view", {n: dets[n].xy_fn2[f]}, np.nan, {n: np.array([f])}))
+    # drop observations too thin to pose
+    for ev in events:
+        ev.obs = {c: xy for c, xy in ev.obs.items() if np.isfinite(xy[:, 0]).sum() >= MIN_CORNERS}
+    events = [ev for ev in events if ev.obs]
+    # 4. pose graph
+    poses = event_poses(cams0, spec, events)
+    keep = [i for i, p in enumerate(poses) if any(v is not None for v in p.values())]
+    events = [events[i] for i in keep]
+    poses = [poses[i] for i in keep]
+    for ev, p in zip(events, poses):
+        bad = [c for c, v in p.items() if v is None]
+        for c in bad:
+            ev.obs.pop(c)
+            p.pop(c)
+    graph = pair_graph(names, poses)
+    counts = {n: len(intr[n].views) for n in names}
+    if len(names) > 1:
+        check_connected(names, graph, counts, st.min_shared, near=_near_partner(names, graph, dets, runs))
+    degree = {n: sum(e["n_agree"] for (a, b), e in graph.items() if n in (a, b)) for n in names}
+    reference = max(names, key=lambda n: (degree[n], -names.index(n)))
+    init = init_extrinsics(names, graph, reference)
+    cams_init = {n: cams0[n].copy(R=init[n][0], t=init[n][1]) for n in names}
+    ev_R = np.zeros((len(events), 3, 3))
+    ev_t = np.zeros((len(events), 3))
+    for e, p in enumerate(poses):
+        c = max(p, key=lambda k: np.isfinite(events[e].obs[k][:, 0]).sum())
+        R_cb, t_cb, _ = p[c]
+        Rc, tc = init[c]  # x_c = Rc x_ref + tc
+        ev_R[e] = Rc.T @ R_cb
+        ev_t[e] = Rc.T @ (t_cb - tc)
+    # 5. bundle adjustment
+    log.info(f"bundle adjustment: {len(names)} cameras, {len(events)} board poses "
+             f"({sum(len(ev.obs) > 1 for ev in events)} seen by several cameras)")
+    t_ba = time.perf_counter()
+    ba = bundle_adjust(cams_init, fixed, reference, spec, events, ev_R, ev_t)
+    t_ba = time.perf_counter() - t_ba
+    rig_ref = Rig([ba.cameras[n] for n in names])
+    # 6. world frame
+    still = np.array([ev.kind in ("hold",) for ev in events])
+    held = np.array([ev.kind == "hold" and len(ev.obs) > 1 for ev in events])
+    centres = np.einsum("eij,j->ei", ba.event_R, spec.center_b3) + ba.event_t
+    up, up_src = up_guess(rig_ref, ba.event_R, held)
+    floor_k = find_floor(ba.event_R, ba.event_t, centres, still, up) if st.floor else None
+    world: dict = {}
+    if floor_k is not None:
+        R_w, t_w = world_from_board(ba.event_R[floor_k], ba.event_t[floor_k])
+        ev = events[floor_k]
+        world = {"source": "floor", "floor_cameras": ev.cameras, "floor_time_s": ev.t_ref,
+                 "floor_duration_s": ev.duration,
+                 "up_vs_guess_deg": float(np.degrees(np.arccos(np.clip(-ba.event_R[floor_k][:, 2] @ up, -1, 1))))}
+    else:
+        R_w, t_w = world_from_camera(rig_ref, up, names[0])
+        msg = (f"no board lying on the floor was found: the world frame is camera {names[0]}'s position with Z up "
+               f"guessed from {up_src}; lay the board flat on the floor, still, for 2 seconds where most cameras see "
+               f"it, to pin the floor at z = 0")
+        log.warn(msg)
+        warnings.append(msg)
+        world = {"source": "first-camera", "camera": names[0], "up_from": up_src}
+    rig = rig_ref.transformed(R_w, t_w)
+    # 7. diagnostics
+    cv = {}
+    for n in names:
+        cv[n] = cross_validate(dets[n], spec, intr[n], st.model) if st.cross_validation and n not in fixed else None
+    cam_diag = {}
+    for k, n in enumerate(names):
+        m = (ba.obs_cam == k)
+        mi = m & ba.inlier
+        res = ba.residual[mi]
+        ev_ids = np.unique(ba.obs_evt[mi])
+        per_view = [float(np.sqrt(np.mean(np.sum(ba.residual[mi & (ba.obs_evt == e)] ** 2, 1)))) for e in ev_ids]
+        shared = int(sum(1 for e in ev_ids if len(events[e].obs) > 1))
+        d = {
+            "rms_px": float(np.sqrt(np.mean(np.sum(res ** 2, 1)))) if len(res) else float("nan"),
+            "intrinsics_rms_px": intr[n].rms_px,
+            "views": int(len(ev_ids)), "shared_views": shared, "intrinsic_views": int(len(intr[n].views)),
+            "corners": int(mi.sum()), "outlier_corners": int((m & ~ba.inlier).sum()),
+            "per_view_rms_px": per_view,
+            "per_view_max_px": float(max(per_view)) if per_view else float("nan"),
+            "coverage": float(intr[n].coverage), "max_tilt_deg": float(intr[n].max_tilt_deg),
+            "intrinsics_fixed": n in fixed,
+            "intrinsics_std": intr[n].std,
+            "bundle_std": ba.std.get(n, {}),
+            "video": str(videos[n]), "size": list(dets[n].size), "rotation_deg": dets[n].rotation_deg,
+            "frames_detected": int((dets[n].n_corners_f >= MIN_CORNERS).sum()),
+            "frames_sampled": int(len(dets[n].times_f)),
+        }
+        if clocks is None and n in offsets:
+            d["board_clock_offset_s"] = offsets[n]
+        if cv[n] is not None:
+            d["cross_validation_px"] = {k2: cv[n][k2] for k2 in ("median_px", "p95_px", "max_px")}
+        cam_diag[n] = d
+    overall = float(ba.rms_px)
+    pairs = {f"{a}-{b}": int(e["n_agree"]) for (a, b), e in graph.items()}
+    diag = {
+        "rms_px": overall,
+        "model": st.model,
+        "board": spec.to_dict(),
+        "reference_camera": reference,
+        "world": world,
+        "events": {"total": len(events), "shared": int(sum(len(ev.obs) > 1 for ev in events)),
+                   "holds": int(sum(ev.kind == "hold" for ev in events)),
+                   "sync": int(sum(ev.kind == "sync" for ev in events)),
+                   "views": int(sum(ev.kind == "view" for ev in events))},
+        "shared_views": pairs,
+        "timing": "given" if clocks is not None else ("estimated from still boards" if len(names) > 1 else "single"),
+        "observations": int(ba.inlier.sum()), "outliers": int((~ba.inlier).sum()),
+        "bundle_rounds": ba.cost_history,
+        "seconds": {"detect": round(t_detect, 2), "bundle": round(t_ba, 2),
+                    "total": round(time.perf_counter() - t_start, 2)},
+        "settings": st.to_dict(),
+    }
+    if warnings:
+        diag["warnings"] = warnings
+    if overall > 1.0:
+        msg = f"the bundle-adjusted reprojection error is high ({overall:.2f} px): check the board spec's sizes " \
+              f"(measure the print) and that the board is flat"
+        log.warn(msg)
+        warnings.append(msg)
+        diag["warnings"] = warnings
+    return CalibrationResult(rig, _finite(diag), _finite(cam_diag), dets, intr, events, ba, cv, R_w, t_w, warnings,
+                             {k: int(e["n_agree"]) for k, e in graph.items()})
+
+
+def _finite(obj):
+    """Diagnostics without NaN/inf (they become absent): TOML/JSON-safe."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items() if not (isinstance(v, float) and not np.isfinite(v))}
+    if isinstance(obj, (list, tuple)):
+        return [None if isinstance(v, float) and not np.isfinite(v) else _finite(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return _finite(obj.item())
+    return obj
+
+
+def write_outputs(result: CalibrationResult, out: Path, spec: BoardSpec, report_dir: Path | None,
+                  producer: dict | None = None) -> list[str]:
+    """calibration.toml (with diagnostics) and, unless report_dir is None, the figures."""
+    from mamma_kit.core.calibfile import write_calibration
+
+    figures: list[str] = []
+    if report_dir is not None:
+        from mamma_kit.calibration.plots import write_figures
+
+        figures = write_figures(result, spec, report_dir)
+        result.diagnostics["figures"] = figures
+    write_calibration(out, result.rig, result.diagnostics, result.camera_diagnostics, producer)
+    return figures
+
+
+def _near_partner(names, graph, dets, runs) -> dict[str, str]:
+    """For each camera, the other camera it comes closest to sharing a still board with:
+    the most (non-agreeing) pairs of still runs, else the most detections."""
+    out = {}
+    for n in names:
+        best, score = None, -1
+        for m in names:
+            if m == n:
+                continue
+            e = graph.get((n, m)) or graph.get((m, n))
+            s = (e["n"] if e else 0) * 1000 + len(runs[m])
+            if s > score:
+                best, score = m, s
+        if best:
+            out[n] = best
+    return out
+
+
+def summary(result: CalibrationResult, output: Path | None = None, figures: list[str] | None = None) -> dict:
+    """The --json summary: per-camera rms_px and the bundle-adjusted overall rms_px."""
+    cams = {}
+    for c in result.rig:
+        d = result.camera_diagnostics[c.name]
+        cams[c.name] = {
+            "rms_px": d["rms_px"], "intrinsics_rms_px": d["intrinsics_rms_px"], "views": d["views"],
+            "shared_views": d["shared_views"], "fx": float(c.K[0, 0]), "fy": float(c.K[1, 1]),
+            "cx": float(c.K[0, 2]), "cy": float(c.K[1, 2]), "distortion": c.dist.tolist(),
+            "center_m": c.center.tolist(), "size": list(c.size),
+            "focal_std_px": d["intrinsics_std"].get("fx"),
+            "cross_validation_px": d.get("cross_validation_px"),
+        }
+    out = {"rms_px": result.diagnostics["rms_px"], "cameras": cams, "world": result.diagnostics["world"],
+           "events": result.diagnostics["events"], "warnings": result.warnings}
+    if output is not None:
+        out["output"] = str(output)
+    if figures is not None:
+        out["figures"] = figures
+    return out
