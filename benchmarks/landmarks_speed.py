@@ -4,7 +4,8 @@
     nice -n 10 /work/venv/bin/python benchmarks/landmarks_speed.py --arch embedded --arch embedded-256 --train
 
 Each architecture runs in its own subprocess (so peak RSS is per model) with torch threads = --threads
-(default 2). Inference is timed end to end per crop: the crop warp from a 1920x1080 frame and mask
+(default 2). Wall-clock figures depend on other jobs on the machine (the load average is printed);
+"per CPU-second" figures with --threads 1 do not, and bound what one idle core does. Inference is timed end to end per crop: the crop warp from a 1920x1080 frame and mask
 (crop.py contract), normalisation and the network; "net only" excludes the crop. Weights are the
 package's trained weights when present, else random ones of the same architecture (said in the
 output: speed does not depend on the values).
@@ -53,18 +54,20 @@ def _one(arch: str, threads: int, batch: int, seconds: float, do_train: bool) ->
         Predictor.to_image(pred.predict_crops(imgs, masks), boxes)
         n += batch
     e2e = n / (time.perf_counter() - t0)
-    n, t0 = 0, time.perf_counter()
+    n, t0, c0 = 0, time.perf_counter(), time.process_time()
     while time.perf_counter() - t0 < seconds or n == 0:
         pred.predict_crops(imgs, masks)
         n += batch
     net = n / (time.perf_counter() - t0)
+    net_cpu = n / (time.process_time() - c0)  # crops per CPU-second: robust to other jobs at 1 thread
     t0 = time.perf_counter()
     for _ in range(20):
         crops(1)
     crop_ms = (time.perf_counter() - t0) / 20 * 1000
     res = {"arch": arch, "weights": weights, "parameters": sum(p.numel() for p in loaded.model.parameters()),
            "input_hw": list(cfg.input_hw), "batch": batch, "threads": threads, "crops_per_s": round(e2e, 2),
-           "net_only_crops_per_s": round(net, 2), "crop_ms": round(crop_ms, 2)}
+           "net_only_crops_per_s": round(net, 2), "crops_per_cpu_s": round(net_cpu, 2),
+           "crop_ms": round(crop_ms, 2)}
     if do_train and not arch.startswith("official"):  # nobody trains ViT-B on a CPU
         from mamma_kit.landmarks.losses import mammanet_loss
         from mamma_kit.landmarks.model import build_model
@@ -87,11 +90,12 @@ def _one(arch: str, threads: int, batch: int, seconds: float, do_train: bool) ->
             opt.step()
 
         step()
-        n, t0 = 0, time.perf_counter()
+        n, t0, c0 = 0, time.perf_counter(), time.process_time()
         while time.perf_counter() - t0 < seconds or n == 0:
             step()
             n += B
         res["train_samples_per_s"] = round(n / (time.perf_counter() - t0), 2)
+        res["train_samples_per_cpu_s"] = round(n / (time.process_time() - c0), 2)
     res["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     return res
 
@@ -114,7 +118,7 @@ def main() -> None:
 
     load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
     print(f"MammaNet speed, {a.threads} torch threads, {a.seconds:.0f} s per measurement, "
-          f"load average before: {load} on {os.cpu_count()} cores")
+          f"load average before: {load} on {os.cpu_count()} cores, OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}")
     print(f"command: {' '.join(sys.argv)}")
     for arch in archs:
         cmd = [sys.executable, __file__, "--child", "--arch", arch, "--threads", str(a.threads), "--seconds",
@@ -123,8 +127,10 @@ def main() -> None:
         line = (f"{r['arch']:<16} {r['parameters'] / 1e6:7.2f} M params  {r['input_hw'][0]}x{r['input_hw'][1]}  "
                 f"batch {r['batch']}: {r['crops_per_s']:7.2f} crops/s end to end (net only {r['net_only_crops_per_s']:.2f}, "
                 f"crop {r['crop_ms']:.1f} ms from 1080p)")
+        line += f"; {r['crops_per_cpu_s']:.2f} crops per CPU-second"
         if "train_samples_per_s" in r:
-            line += f", training {r['train_samples_per_s']:.2f} samples/s"
+            line += (f"; training {r['train_samples_per_s']:.2f} samples/s "
+                     f"({r['train_samples_per_cpu_s']:.2f} per CPU-second)")
         line += f", peak RSS {r['peak_rss_mb']:.0f} MB, weights: {r['weights']}"
         print(line, flush=True)
     print(f"load average after: {', '.join(f'{v:.1f}' for v in os.getloadavg())} (other work on the machine slows "

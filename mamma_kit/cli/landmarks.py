@@ -41,6 +41,8 @@ def landmarks_cmd(
                                                             "embedded-single, official, ..."),
     batch: int = typer.Option(8, "--batch", min=1, help="Crops per network batch."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
+    threads: int = typer.Option(0, "--threads", min=0, help="torch CPU threads (0 = torch's default; 1 is faster "
+                                                            "on a machine busy with other jobs)."),
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated subset of cameras."),
     source: str = typer.Option("net", "--source", help="net (MammaNet) or gt (noisy ground truth of a synthetic "
                                                        "workspace)."),
@@ -72,6 +74,10 @@ def landmarks_cmd(
 
         if not torch.cuda.is_available():
             raise UserError("--device cuda but torch sees no CUDA device", "use --device cpu")
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
     from mamma_kit.core.manifest import StageManifest, producer
     from mamma_kit.core.workspace import Workspace
 
