@@ -11,7 +11,9 @@ Pixel coordinates follow OpenCV (integer = pixel centre), in the image and in th
    x = cx + (u + 0.5 - W_in/2) * bw / W_in. Image bilinear, mask nearest, border 0. When the crop
    downscales, the crop REGION of the image (never the whole frame) is Gaussian-blurred first with
    sigma (d - 1) / 2 if d > 1.1, where d = max(bw, bh) / (2 W_in) for the ``official`` rule (as in
-   the official pre-processing) and d = bh / H_in, the true downscale factor, for our own models.
+   the official pre-processing) and d = bh / H_in, the true downscale factor, for our own models
+   (``scale`` rule; there the region is first halved k = floor(log2 d) times with an image pyramid
+   and the remaining factor d / 2^k is blurred the same way, so a 4K frame costs a few ms).
 4. Network coordinates n in [-1, 1] span the box: n = -1 and +1 are its left/right (top/bottom)
    edges, so image x = cx + n_x * bw / 2, y = cy + n_y * bh / 2 (``normalised_to_image``), and crop
    pixel u = (n + 1) / 2 * W_in - 0.5.
