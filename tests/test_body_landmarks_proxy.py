@@ -113,3 +113,16 @@ def test_signed_distance_matches_trimesh_and_gradients(body):
     sd_pn = signed_distance(torch.tensor(pts), V, px.faces, px.neighbours, sign="pseudonormal")
     assert (torch.sign(sd_pn) == torch.sign(sd.detach())).float().mean() > 0.98
     assert np.array_equal(body.vertex_parts, body.vertex_part) and len(body.part_names) == 16
+
+
+def test_closed_manifold_check():
+    from mamma_kit.body.proxy import is_closed_manifold, signed_volume
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    assert is_closed_manifold(f) and abs(signed_volume(v, f) - 1 / 6) < 1e-12
+    assert not is_closed_manifold(f[:3])  # a hole
+    flipped = f.copy()
+    flipped[0] = flipped[0, ::-1]
+    assert not is_closed_manifold(flipped)  # inconsistent winding
+    assert signed_volume(v, f[:, ::-1]) < 0
