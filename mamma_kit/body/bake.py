@@ -16,6 +16,10 @@ read it), rotated from anny's frame (Z up, facing -Y) into SMPL-X's (Y up, facin
 - J_regressor: per joint, weights summing to 1 over its 200 nearest vertices, fitted by
   ridge least squares to the joints of every sample (see fit_joint_regressor).
 - posedirs zero (anny has no pose correctives), no expression space.
+- Zero pose is anny's rest pose, NOT SMPL-X's T-pose: upper arms about 48 degrees below
+  horizontal, forearms bent about 50 degrees forward; pose priors made for SMPL-X's zero
+  pose do not transfer as they are. Origin near the pelvis (the mean body's pelvis joint
+  sits 0.16 m above it, its soles 0.82 m below).
 - Extras (``mk_*`` keys): name, provenance JSON, the 21 extra keypoint vertex ids
   (smplx's vertex_joint_selector order), and the 512 landmark ids + parts (frozen here so
   the embedded MammaNet's landmarks never drift).
