@@ -1,0 +1,368 @@
+"""`--backend builtin`: person mask tracks without any weights, for static cameras.
+
+Per camera:
+
+1. Background model: the per-pixel median over frames sampled across the video, then again
+   over the samples where that pixel was not foreground (a person standing still for a third
+   of the video does not end up in the background). Per-pixel noise from the background samples'
+   median absolute deviation.
+2. Foreground in a shadow-robust colour model: each pixel's colour is compared with the
+   background as a brightness ratio alpha = <I, B> / <B, B> and a chromatic distortion
+   |I - alpha B| (Horprasert-style). A soft shadow darkens the background without changing
+   its chromaticity (0.45 < alpha < 1, small distortion): background. Then opening/closing,
+   hole filling and connected components above a minimum area.
+3. Tracking: each track's last mask, shifted by its velocity, predicts where it is. A component
+   claimed by two or more predictions (people touching or crossing) is split pixel by pixel
+   between them by distance to each prediction and each track's colour histogram; a track
+   that gets (almost) nothing is occluded and coasts on its velocity. Components no prediction
+   claims are matched to recently lost tracks by appearance and position (Hungarian), else
+   start new tracks. Tracks lost for more than ``max_lost`` frames end; a person who comes back
+   later gets a new track (cross-view matching rejoins it with its person).
+
+Work happens at a reduced resolution (``max_side``) and masks are scaled back to the video's.
+Where it struggles (benchmarks/masks_quality.py): people who never move (background), clothes
+the colour of the background, and long full occlusions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mamma_kit.core import log
+from mamma_kit.core.tracks import MaskTracks
+from mamma_kit.masks.base import CameraInput, MaskTrackBuilder, track_summary
+
+
+@dataclass
+class BuiltinSettings:
+    max_side: int = 960  # working resolution (longest side, px)
+    bg_samples: int = 40
+    chroma_k: float = 5.0  # chromatic distortion / noise above which a pixel is foreground
+    bright_k: float = 6.0  # brightness change / noise above which a brighter pixel is foreground
+    shadow_alpha: float = 0.5  # darker than this fraction of the background: not a shadow
+    chroma_angle: float = 0.08  # chromatic distortion relative to brightness that marks a new colour
+    noise_floor: float = 2.5  # grey levels
+    min_area_frac: float = 4e-4  # of the image area: smaller components are noise
+    new_track_area_frac: float = 8e-4
+    claim_frac: float = 0.15  # a prediction claims a component holding this much of it
+    occluded_frac: float = 0.12  # a track given less than this fraction of its predicted area is occluded
+    colour_weight: float = 1.0
+    max_lost: int = 45  # frames a lost track can be re-identified
+    reid_similarity: float = 0.5  # Bhattacharyya coefficient needed to re-identify a lost track
+    velocity_smoothing: float = 0.5
+
+
+# ---- colour --------------------------------------------------------------------------
+HIST_BINS = (12, 4, 4)  # hue, saturation, value
+
+
+def colour_index(rgb_hw3: np.ndarray) -> np.ndarray:
+    hsv = cv2.cvtColor(rgb_hw3, cv2.COLOR_RGB2HSV)
+    h = (hsv[..., 0].astype(np.int32) * HIST_BINS[0]) // 180
+    s = (hsv[..., 1].astype(np.int32) * HIST_BINS[1]) // 256
+    v = (hsv[..., 2].astype(np.int32) * HIST_BINS[2]) // 256
+    return (h * HIST_BINS[1] + s) * HIST_BINS[2] + v
+
+
+def histogram(idx_hw: np.ndarray, mask_hw: np.ndarray) -> np.ndarray:
+    n = int(np.prod(HIST_BINS))
+    h = np.bincount(idx_hw[mask_hw], minlength=n).astype(np.float64) + 0.5
+    return h / h.sum()
+
+
+def bhattacharyya(p: np.ndarray, q: np.ndarray) -> float:
+    return float(np.sqrt(p * q).sum())
+
+
+# ---- background ----------------------------------------------------------------------
+@dataclass
+class Background:
+    mean_hw3: np.ndarray  # float32
+    noise_hw: np.ndarray  # float32 grey levels
+
+
+def foreground(img_hw3: np.ndarray, bg: Background, s: BuiltinSettings) -> np.ndarray:
+    """Raw foreground (bool (H, W)) by brightness ratio and chromatic distortion."""
+    I = img_hw3.astype(np.float32)
+    B = bg.mean_hw3
+    bb = (B * B).sum(-1) + 1.0
+    alpha = (I * B).sum(-1) / bb
+    cd = np.linalg.norm(I - alpha[..., None] * B, axis=-1)
+    bnorm = np.sqrt(bb)
+    sig = bg.noise_hw
+    # chromatic change: large against the noise, or moderate and a clear change of hue direction
+    chroma = (cd > s.chroma_k * sig) | ((cd > 3.0 * sig) & (cd > s.chroma_angle * np.linalg.norm(I, axis=-1)))
+    brighter = (alpha - 1.0) * bnorm > s.bright_k * sig
+    darker = (1.0 - alpha) * bnorm > s.bright_k * sig
+    # a darker pixel with background chromaticity is a shadow unless it is far too dark
+    too_dark = darker & (alpha < s.shadow_alpha)
+    return chroma | brighter | too_dark
+
+
+def build_background(frames: list[np.ndarray], s: BuiltinSettings) -> Background:
+    stack = np.stack(frames).astype(np.float32)  # (N, H, W, 3)
+    med = np.median(stack, 0)
+    noise0 = np.full(med.shape[:2], s.noise_floor * 2, np.float32)
+    bg = Background(med, noise0)
+    fg = np.stack([_clean(foreground(f, bg, s), s, f.shape[0]) for f in frames])  # (N, H, W)
+    dev = np.abs(stack - med).mean(-1)  # (N, H, W)
+    keep = ~fg
+    enough = keep.sum(0) >= max(3, len(frames) // 4)
+    if enough.any():
+        masked = np.where(keep[..., None], stack, np.nan)
+        med2 = np.nanmedian(masked[:, enough], 0)  # (M, 3)
+        med = med.copy()
+        med[enough] = med2
+        dev = np.abs(stack - med).mean(-1)
+    dev = np.where(keep, dev, np.nan)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mad = np.nanmedian(dev, 0)
+    noise = np.where(np.isfinite(mad), 1.4826 * mad * 1.25, s.noise_floor * 2)  # mean|.| of 3 channels -> sigma
+    noise = cv2.GaussianBlur(noise.astype(np.float32), (0, 0), 2.0)
+    # pixels people cover in most samples look noisy: cap at 3x the image's typical noise
+    noise = np.minimum(noise, 3.0 * max(float(np.median(noise)), s.noise_floor))
+    return Background(med.astype(np.float32), np.maximum(noise, s.noise_floor).astype(np.float32))
+
+
+def _radius(h: int) -> int:
+    return max(1, int(round(h / 360)))
+
+
+def _clean(fg: np.ndarray, s: BuiltinSettings, h: int) -> np.ndarray:
+    r = _radius(h)
+    k_open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    k_close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    m = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, k_open)
+    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, k_close)
+    return fill_holes(m > 0)
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """Fill enclosed holes: what the border cannot reach through background is foreground."""
+    h, w = mask.shape
+    pad = np.zeros((h + 2, w + 2), np.uint8)
+    pad[1:-1, 1:-1] = mask
+    flood = pad.copy()
+    ff = np.zeros((h + 4, w + 4), np.uint8)
+    cv2.floodFill(flood, ff, (0, 0), 1)
+    return (pad | (1 - flood))[1:-1, 1:-1].astype(bool)
+
+
+def components(mask: np.ndarray, min_area: int) -> list[np.ndarray]:
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    keep = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area]
+    return [lab == i for i in keep]
+
+
+# ---- tracking ------------------------------------------------------------------------
+@dataclass
+class Track:
+    tid: int
+    mask: np.ndarray  # last observed mask (bool, working resolution)
+    centroid: np.ndarray  # (2,) x, y
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    hist: np.ndarray | None = None
+    last_seen: int = 0
+    area: float = 0.0
+
+    def predicted(self, frame: int) -> np.ndarray:
+        """The last mask shifted by the velocity over the frames since it was seen."""
+        d = self.velocity * (frame - self.last_seen)
+        if not np.any(np.abs(d) >= 0.5):
+            return self.mask
+        h, w = self.mask.shape
+        M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
+        return cv2.warpAffine(self.mask.astype(np.uint8), M, (w, h), flags=cv2.INTER_NEAREST) > 0
+
+
+def _centroid(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.mean(), ys.mean()]) if len(xs) else np.zeros(2)
+
+
+def split_component(comp: np.ndarray, preds: list[np.ndarray], hists: list[np.ndarray], cidx: np.ndarray,
+                    colour_weight: float) -> tuple[list[np.ndarray], list[float]]:
+    """Share a component's pixels among the predicted masks of the tracks that claim it.
+
+    Each pixel goes to the track maximising -distance to its prediction (in units of a tenth of
+    the prediction's size) + colour_weight * log colour likelihood under its histogram. Returns
+    the part per track and its mean posterior (a score)."""
+    ys, xs = np.nonzero(comp)
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    pad = 4
+    y0, x0 = max(0, y0 - pad), max(0, x0 - pad)
+    y1, x1 = min(comp.shape[0], y1 + pad), min(comp.shape[1], x1 + pad)
+    sub = comp[y0:y1, x0:x1]
+    py, px = np.nonzero(sub)
+    scores = []
+    for p, h in zip(preds, hists):
+        ps = p[y0:y1, x0:x1]
+        dist = cv2.distanceTransform((~ps).astype(np.uint8), cv2.DIST_L2, 3)[py, px]
+        size = max(np.sqrt(max(p.sum(), 1.0)), 4.0)
+        col = np.log(h[cidx[y0:y1, x0:x1][py, px]]) if h is not None else 0.0
+        scores.append(-dist / (0.1 * size) + colour_weight * col)
+    S = np.stack(scores)  # (K, n)
+    lab = np.argmax(S, 0)
+    post = np.exp(S - S.max(0))
+    post = post / post.sum(0)
+    parts, conf = [], []
+    for k in range(len(preds)):
+        m = np.zeros_like(comp)
+        sel = lab == k
+        m[y0 + py[sel], x0 + px[sel]] = True
+        parts.append(m)
+        conf.append(float(post[k, sel].mean()) if sel.any() else 0.0)
+    return parts, conf
+
+
+class Tracker:
+    """Frame-by-frame tracker over foreground components (see module doc)."""
+
+    def __init__(self, shape_hw: tuple[int, int], s: BuiltinSettings):
+        self.s = s
+        self.h, self.w = shape_hw
+        self.tracks: dict[int, Track] = {}
+        self.next_id = 0
+        self.area_px = self.h * self.w
+
+    def step(self, t: int, fg: np.ndarray, cidx: np.ndarray) -> dict[int, tuple[np.ndarray, float]]:
+        s = self.s
+        comps = components(fg, max(4, int(s.min_area_frac * self.area_px)))
+        live = {k: tr for k, tr in self.tracks.items() if t - tr.last_seen <= s.max_lost}
+        self.tracks = live
+        recent = [k for k, tr in live.items() if t - tr.last_seen <= 2]  # followed by prediction
+        preds = {k: live[k].predicted(t) for k in recent}
+        pred_area = {k: max(float(preds[k].sum()), 1.0) for k in recent}
+        claim = np.zeros((len(comps), len(recent)))
+        for ci, c in enumerate(comps):
+            for j, k in enumerate(recent):
+                claim[ci, j] = np.count_nonzero(c & preds[k]) / pred_area[k]
+        out: dict[int, tuple[np.ndarray, float]] = {}
+        pure: set[int] = set()
+        unclaimed = []
+        for ci, c in enumerate(comps):
+            who = [recent[j] for j in np.flatnonzero(claim[ci] >= s.claim_frac)]
+            if not who and len(recent) and claim[ci].max() > 0:
+                # a small overlap still belongs to the best track if no other component holds it better
+                j = int(np.argmax(claim[ci]))
+                if claim[:, j].argmax() == ci and claim[ci, j] > 0.02:
+                    who = [recent[j]]
+            if not who:
+                unclaimed.append(c)
+            elif len(who) == 1:
+                k = who[0]
+                prev = out.get(k)
+                out[k] = ((prev[0] | c) if prev else c, 1.0)
+                pure.add(k)
+            else:
+                parts, conf = split_component(c, [preds[k] for k in who], [live[k].hist for k in who], cidx,
+                                              s.colour_weight)
+                for k, m, sc in zip(who, parts, conf):
+                    if m.sum() < s.occluded_frac * pred_area[k]:
+                        continue  # occluded: coasts on its prediction
+                    prev = out.get(k)
+                    out[k] = ((prev[0] | m) if prev else m, sc)
+        # re-identify lost tracks, else start new ones
+        lost = [k for k, tr in live.items() if k not in out and t - tr.last_seen > 0]
+        big = [c for c in unclaimed if c.sum() >= s.new_track_area_frac * self.area_px]
+        if big and lost:
+            C = np.full((len(big), len(lost)), 1e6)
+            for i, c in enumerate(big):
+                hc = histogram(cidx, c)
+                cc = _centroid(c)
+                for j, k in enumerate(lost):
+                    tr = live[k]
+                    sim = bhattacharyya(hc, tr.hist) if tr.hist is not None else 0.0
+                    gap = t - tr.last_seen
+                    reach = np.sqrt(tr.area) * (1.0 + 0.5 * gap) + np.linalg.norm(tr.velocity) * gap
+                    dist = np.linalg.norm(cc - (tr.centroid + tr.velocity * gap))
+                    if sim >= s.reid_similarity and dist <= reach:
+                        C[i, j] = (1 - sim) + 0.2 * dist / max(reach, 1.0)
+            r, cc_ = linear_sum_assignment(C)
+            taken = set()
+            for i, j in zip(r, cc_):
+                if C[i, j] < 1e6:
+                    out[lost[j]] = (big[i], 1.0)
+                    pure.add(lost[j])
+                    taken.add(i)
+            big = [c for i, c in enumerate(big) if i not in taken]
+        for c in big:
+            k = self.next_id
+            self.next_id += 1
+            self.tracks[k] = Track(k, c, _centroid(c), last_seen=t, hist=histogram(cidx, c), area=float(c.sum()))
+            out[k] = (c, 1.0)
+            pure.add(k)
+        # update state
+        a = self.s.velocity_smoothing
+        for k, (m, _) in out.items():
+            tr = self.tracks[k]
+            c = _centroid(m)
+            if t > tr.last_seen and tr.area > 0:
+                v = (c - tr.centroid) / (t - tr.last_seen)
+                if k in pure:  # a split part's centroid is biased: keep the old velocity
+                    tr.velocity = a * tr.velocity + (1 - a) * v
+            tr.centroid, tr.mask, tr.last_seen, tr.area = c, m, t, float(m.sum())
+            if k in pure:
+                hc = histogram(cidx, m)
+                tr.hist = hc if tr.hist is None else 0.8 * tr.hist + 0.2 * hc
+        return out
+
+
+# ---- the backend -------------------------------------------------------------------------
+class BuiltinBackend:
+    name = "builtin"
+
+    def __init__(self, settings: BuiltinSettings | None = None):
+        self.s = settings or BuiltinSettings()
+
+    def track_camera(self, cam: CameraInput) -> tuple[MaskTracks, dict]:
+        from mamma_kit.video.reader import VideoReader
+
+        s = self.s
+        rd = VideoReader(cam.video)
+        times = rd.timestamps
+        W, H = rd.size
+        f = min(1.0, s.max_side / max(W, H))
+        ws_ = (max(1, int(round(W * f))), max(1, int(round(H * f))))
+
+        def prep(img):
+            return img if f == 1.0 else cv2.resize(img, ws_, interpolation=cv2.INTER_AREA)
+
+        n = len(times)
+        idx = np.unique(np.round(np.linspace(0, n - 1, min(s.bg_samples, n))).astype(int))
+        samples = [prep(img) for _, _, img in rd.read_indices(idx)]
+        bg = build_background(samples, s)
+        del samples
+        tracker = Tracker((ws_[1], ws_[0]), s)
+        out_tracks = MaskTrackBuilder(cam.name, (W, H), times)
+        for t, img in log.track(rd.frames(), f"track {cam.name}", total=n):
+            ti = int(np.argmin(np.abs(times - t)))
+            small = prep(img)
+            fg = _clean(foreground(small, bg, s), s, small.shape[0])
+            out = tracker.step(ti, fg, colour_index(small))
+            for k, (m, sc) in out.items():
+                if f != 1.0:
+                    m = cv2.resize(m.astype(np.uint8) * 255, (W, H), interpolation=cv2.INTER_LINEAR) > 127
+                out_tracks.add(ti, k, m, sc)
+        mt = out_tracks.build()
+        summ = track_summary(mt)
+        summ["working_size"] = list(ws_)
+        summ["settings"] = asdict(s)
+        return mt, summ
+
+
+def load_settings(path: Path | None, overrides: dict | None = None) -> BuiltinSettings:
+    s = BuiltinSettings()
+    for k, v in (overrides or {}).items():
+        if hasattr(s, k):
+            setattr(s, k, type(getattr(s, k))(v))
+    return s

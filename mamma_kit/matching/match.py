@@ -1,0 +1,189 @@
+"""`mamma-kit match`: cross-view identities of the per-view tracks -> identities.json.
+
+Inputs: landmarks/<cam>.npz (per view tracks), calibration.toml, and timing.toml to pair the
+unsynchronised cameras' frames by time (without it, frames are paired by index, with a
+warning). Output: core.identities.Identities.
+
+Constants (distances in units of the person's height in the image, see pairs.py):
+
+- ``lam = 0.05``: affinity exp(-D / lam). The official code uses exp(-D / 50 px) at its
+  capture resolution; 5 % of the body height is the same order for a full-body person
+  ~1000 px tall, and unlike pixels it does not change with resolution or distance.
+- ``max_distance = 0.12``: affinity 0 above it (official: 80 px). Same person: D is the landmark
+  noise (1.2 % of the height gives D ~ 0.02) plus outliers (capped). Different people: most
+  landmarks are tens of percent of a height off the epipolar line (D ~ 0.2+), except people who
+  stand on one epipolar plane of that camera pair for the whole tracklet.
+- ``min_affinity = 0.25`` (D < 0.069) to keep an assignment or merge groups (official: 0.4 at
+  50 px = D < 46 px).
+- ``min_landmarks = 20`` shared landmark observations over the tracklet, at least one frame
+  with 5 (official: 5 in the frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mamma_kit.core import log
+from mamma_kit.core.calibfile import read_calibration
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.identities import Identities
+from mamma_kit.core.tracks import LandmarkTracks
+from mamma_kit.core.workspace import Workspace
+from mamma_kit.matching.grouping import Node, group_tracks
+from mamma_kit.matching.pairs import ViewTracks, pair_distances
+
+
+@dataclass
+class MatchSettings:
+    lam: float = 0.05
+    max_distance: float = 0.12
+    min_affinity: float = 0.25
+    min_landmarks: int = 20
+    min_per_frame: int = 5
+    cap: float = 0.25
+    vis_threshold: float = 0.5
+    max_frames: int = 150
+    coexist_tolerance: int = 2
+
+
+def affinity_of(D: np.ndarray, n_shared: np.ndarray, frames: np.ndarray, s: MatchSettings) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        A = np.exp(-np.nan_to_num(D, nan=np.inf) / s.lam)
+    ok = (n_shared >= s.min_landmarks) & (frames >= 1) & (np.nan_to_num(D, nan=np.inf) <= s.max_distance)
+    return np.where(ok, A, 0.0)
+
+
+def _nan_none(a: np.ndarray, digits: int = 4) -> list:
+    return [[None if not np.isfinite(v) else round(float(v), digits) for v in row] for row in np.asarray(a, float)]
+
+
+def match_views(views: list[ViewTracks], settings: MatchSettings | None = None) -> Identities:
+    """Identities of the tracks of the given views (see module doc)."""
+    s = settings or MatchSettings()
+    names = [v.name for v in views]
+    nodes: list[Node] = []
+    node_of: dict[tuple[int, int], int] = {}
+    unassigned = []
+    for vi, v in enumerate(views):
+        for k, tid in enumerate(v.track_ids):
+            if not v.valid_tk[:, k].any():
+                unassigned.append({"camera": v.name, "track": int(tid), "reason": "no frame with landmarks"})
+                continue
+            node_of[(vi, k)] = len(nodes)
+            nodes.append(Node(vi, int(tid), v.valid_tk[:, k].copy()))
+    N = len(nodes)
+    A = np.zeros((N, N))
+    evidence = np.zeros((N, N), bool)
+    pairs: dict = {}
+    view_pairs = []
+    for a in range(len(views)):
+        for b in range(a + 1, len(views)):
+            va, vb = views[a], views[b]
+            r = pair_distances(va, vb, cap=s.cap, max_frames=s.max_frames, min_per_frame=s.min_per_frame)
+            Ap = affinity_of(r.distance, r.shared_landmarks, r.shared_frames, s)
+            ev = (r.shared_landmarks >= s.min_landmarks) & (r.shared_frames >= 1)
+            for i in range(va.n_tracks):
+                for j in range(vb.n_tracks):
+                    x, y = node_of.get((a, i)), node_of.get((b, j))
+                    if x is None or y is None:
+                        continue
+                    A[x, y] = A[y, x] = Ap[i, j]
+                    evidence[x, y] = evidence[y, x] = ev[i, j]
+            pairs[f"{va.name}|{vb.name}"] = {
+                "rows": va.track_ids.tolist(), "cols": vb.track_ids.tolist(), "affinity": _nan_none(Ap),
+                "distance": _nan_none(r.distance), "distance_px": _nan_none(r.distance_px, 2),
+                "shared_landmarks": r.shared_landmarks.tolist(), "shared_frames": r.shared_frames.tolist()}
+            view_pairs.append((a, b))
+
+    def describe(i: int) -> list:
+        return [names[nodes[i].view], nodes[i].track]
+
+    grouping = group_tracks(nodes, A, evidence, view_pairs, s.min_affinity, s.coexist_tolerance, describe)
+    # persons ordered by number of views, then frames
+    def key(g):
+        return (-len({nodes[i].view for i in g}), -sum(int(nodes[i].presence.sum()) for i in g), g[0])
+
+    groups = sorted(grouping.groups, key=key)
+    assignments: dict[str, dict[int, int]] = {n: {} for n in names}
+    for pid, g in enumerate(groups):
+        for i in g:
+            assignments[names[nodes[i].view]][nodes[i].track] = pid
+    frames = {(names[n.view], n.track): int(n.presence.sum()) for n in nodes}
+    # why pairs of evidence-sharing tracks were kept apart, for the diagnostics
+    gid = {i: pid for pid, g in enumerate(groups) for i in g}
+    n_multi = sum(1 for g in groups if len({nodes[i].view for i in g}) > 1)
+    diag = {
+        "persons": len(groups), "persons_multiview": n_multi, "tracks": N,
+        "view_counts": {str(pid): len({nodes[i].view for i in g}) for pid, g in enumerate(groups)},
+        "accepted_edges": len(grouping.edges), "rejected": len(grouping.rejected),
+        "group_affinity": {str(pid): _mean_within(A, evidence, g) for pid, g in enumerate(groups)},
+        "max_affinity_between_groups": _max_between(A, evidence, gid),
+    }
+    return Identities(names, assignments, pairs, grouping.rejected, unassigned, asdict(s), diag, {}, frames)
+
+
+def _mean_within(A, evidence, g) -> float | None:
+    g = np.asarray(g)
+    ev = evidence[np.ix_(g, g)]
+    return round(float(A[np.ix_(g, g)][ev].mean()), 4) if ev.any() else None
+
+
+def _max_between(A, evidence, gid: dict[int, int]) -> float:
+    idx = np.array(sorted(gid))
+    if len(idx) < 2:
+        return 0.0
+    lab = np.array([gid[i] for i in idx])
+    diff = lab[:, None] != lab[None]
+    vals = A[np.ix_(idx, idx)][diff & evidence[np.ix_(idx, idx)]]
+    return round(float(vals.max()), 4) if len(vals) else 0.0
+
+
+# ---- workspace entry point ------------------------------------------------------------
+def camera_times(ws: Workspace, cams: list[str], lts: dict[str, LandmarkTracks], timing: Path | None) \
+        -> tuple[dict[str, np.ndarray], str]:
+    """Reference times of every camera's frames and how they were found."""
+    if timing is not None:
+        from mamma_kit.core.timingfile import read_timing
+
+        clocks, _ = read_timing(timing)
+        missing = [c for c in cams if c not in clocks]
+        if missing:
+            raise UserError(f"{timing.name} has no clock for {', '.join(missing)}",
+                            "run `mamma-kit sync WORKSPACE` again with every camera")
+        return {c: clocks[c].to_ref(lts[c].frame_times) for c in cams}, str(timing)
+    log.warn("no timing.toml: pairing frames across cameras by frame index (run `mamma-kit sync` first "
+             "for unsynchronised cameras)")
+    return {c: np.arange(len(lts[c].frame_times), dtype=np.float64) for c in cams}, "frame index"
+
+
+def match_workspace(ws: Workspace, cameras: list[str] | None = None, calibration: Path | None = None,
+                    timing: Path | None = None, settings: MatchSettings | None = None) -> Identities:
+    calib = calibration or ws.calibration
+    if not Path(calib).is_file():
+        raise UserError(f"no calibration at {calib}", "run `mamma-kit calibrate WORKSPACE` (or pass --calibration)")
+    rig, _ = read_calibration(calib)
+    if cameras is None:
+        cameras = ws.load_capture().camera_names if ws.capture_toml.is_file() else \
+            sorted(p.stem for p in ws.landmarks_dir.glob("*.npz"))
+    missing = [c for c in cameras if not ws.landmarks_file(c).is_file()]
+    if missing:
+        raise UserError(f"no landmarks for {', '.join(missing)} (landmarks/<cam>.npz)",
+                        "run `mamma-kit landmarks WORKSPACE` first")
+    not_cal = [c for c in cameras if c not in rig]
+    if not_cal:
+        raise UserError(f"{Path(calib).name} has no camera {', '.join(not_cal)}",
+                        "calibrate every camera of the capture, or pass --cameras")
+    if len(cameras) < 2:
+        raise UserError("matching needs at least two cameras", "pass two or more with --cameras")
+    lts = {c: LandmarkTracks.load(ws.landmarks_file(c)) for c in cameras}
+    if timing is None and ws.timing.is_file():
+        timing = ws.timing
+    times, how = camera_times(ws, cameras, lts, Path(timing) if timing else None)
+    views = [ViewTracks.from_landmarks(lts[c], rig[c], times[c], (settings or MatchSettings()).vis_threshold)
+             for c in cameras]
+    ident = match_views(views, settings)
+    ident.diagnostics["time_pairing"] = how
+    return ident

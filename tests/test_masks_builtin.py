@@ -1,0 +1,177 @@
+"""The builtin mask backend on a scene whose truth we draw ourselves: two textured people with
+soft contact shadows walk towards each other, cross (one occludes the other) and walk apart,
+over a textured floor, with sensor noise, through a real H.264 file.
+
+Outcomes: mean IoU against the drawn masks while people are apart, stable ids through the
+crossing, shadows not segmented, and the MaskTracks file round trip through `mamma-kit track`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mamma_kit.core.tracks import MaskTracks
+from mamma_kit.core.io import write_toml
+from mamma_kit.video.writer import VideoWriter
+
+W, H, T = 256, 160, 48
+
+
+def _person_mask(cx: float, foot_y: float, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """A person-like silhouette (head, torso, legs) -> (mask (H, W), upper-body mask)."""
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    top = foot_y - height
+    head = ((xx - cx) / (0.07 * height)) ** 2 + ((yy - (top + 0.08 * height)) / (0.09 * height)) ** 2 <= 1
+    torso = (np.abs(xx - cx) <= 0.14 * height) & (yy >= top + 0.16 * height) & (yy <= top + 0.55 * height)
+    legs = (np.abs(np.abs(xx - cx) - 0.07 * height) <= 0.05 * height) & (yy > top + 0.55 * height) & (yy <= foot_y)
+    return head | torso | legs, head | torso
+
+
+def draw_scene(seed: int = 0):
+    """Frames (T, H, W, 3) uint8, true masks (T, 2, H, W) and shadow strength (T, H, W) in [0, 0.45];
+    person 0 passes in front of person 1."""
+    rng = np.random.default_rng(seed)
+    import cv2
+
+    base = rng.uniform(90, 160, (H // 8, W // 8, 3))
+    bg = cv2.resize(base, (W, H), interpolation=cv2.INTER_CUBIC)
+    bg += rng.normal(0, 6, (H, W, 3))
+    bg[::16] *= 0.8  # floor tiles
+    yy, xx = np.mgrid[0:H, 0:W]
+    looks = [(np.array([200, 40, 40]), np.array([40, 60, 170])), (np.array([40, 170, 60]), np.array([60, 50, 40]))]
+    frames = np.zeros((T, H, W, 3), np.uint8)
+    truth = np.zeros((T, 2, H, W), bool)
+    shade = np.zeros((T, H, W))
+    for t in range(T):
+        u = t / (T - 1)
+        xs = [30 + u * (W - 60), W - 30 - u * (W - 60)]
+        feet = [150.0, 138.0]  # person 0 nearer the camera (lower in the image, taller)
+        hts = [110.0, 96.0]
+        img = bg.copy()
+        for p in (1, 0):  # far person first, then the near one over it
+            m, upper = _person_mask(xs[p], feet[p], hts[p])
+            shadow = np.exp(-(((xx - xs[p]) / 22.0) ** 2 + ((yy - feet[p]) / 5.0) ** 2))
+            img *= (1 - 0.45 * shadow)[..., None]  # soft contact shadow: darker, same chromaticity
+            shade[t] = np.maximum(shade[t], 0.45 * shadow)
+            top, bottom = looks[p]
+            tex = rng.normal(0, 8, (H, W, 3))
+            img[m & upper] = top + tex[m & upper]
+            img[m & ~upper] = bottom + tex[m & ~upper]
+            truth[t, p] = m
+        truth[t, 1] &= ~truth[t, 0]  # occluded part of the far person is not visible
+        frames[t] = np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8)
+    return frames, truth, shade
+
+
+def write_capture(root, frames, fps: float = 30.0):
+    (root / "videos").mkdir(parents=True, exist_ok=True)
+    times = np.arange(len(frames)) / fps
+    with VideoWriter(root / "videos" / "cam0.mp4", W, H, fps=fps, crf=16) as w:
+        for t, f in zip(times, frames):
+            w.write_frame(f, float(t))
+    write_toml(root / "capture.toml", {"capture": {"name": "drawn"}, "cameras": {"cam0": {"video": "videos/cam0.mp4"}}})
+    return times
+
+
+def _iou(a, b):
+    u = np.count_nonzero(a | b)
+    return np.count_nonzero(a & b) / u if u else 1.0
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory):
+    """The scene tracked once through the real command (`mamma-kit track --backend builtin`)."""
+    from mamma_kit.cli.app import main
+
+    root = tmp_path_factory.mktemp("drawn")
+    frames, truth, shade = draw_scene()
+    write_capture(root, frames)
+    with pytest.raises(SystemExit) as e:
+        main(["track", str(root), "--backend", "builtin", "--quiet", "--json"])
+    assert e.value.code in (0, None)
+    return root, shade, truth, MaskTracks.load(root / "masks" / "cam0.npz")
+
+
+def _per_person(mt: MaskTracks, truth):
+    """IoU per frame and person, using for each person the track that overlaps it most overall."""
+    K = len(mt.track_ids)
+    overlap = np.zeros((2, K))
+    for t in range(T):
+        for k in np.flatnonzero(mt.present[t]):
+            m = mt.mask(t, k)
+            overlap[:, k] += [_iou(m, truth[t, 0]), _iou(m, truth[t, 1])]
+    best = overlap.argmax(1)
+    iou = np.zeros((T, 2))
+    for t in range(T):
+        for p in range(2):
+            m = mt.mask(t, best[p]) if mt.present[t, best[p]] else np.zeros((H, W), bool)
+            iou[t, p] = _iou(m, truth[t, p])
+    return best, iou
+
+
+def _apart(truth):
+    import cv2
+
+    k = np.ones((7, 7), np.uint8)
+    return np.array([not (cv2.dilate(truth[t, 0].astype(np.uint8), k) & truth[t, 1]).any() for t in range(T)])
+
+
+def test_separated_people_iou_and_no_shadow(tracked):
+    _, shade, truth, mt = tracked
+    best, iou = _per_person(mt, truth)
+    apart = _apart(truth)
+    assert apart.sum() >= 20
+    # the first frames are the hardest (nothing known yet): still the target 0.85 on average
+    assert iou[apart].mean() >= 0.85, iou[apart].mean()
+    # shadows: floor pixels darkened by 15-45 % but not on a person are almost never foreground
+    union = np.zeros((T, H, W), bool)
+    for t in range(T):
+        for k in np.flatnonzero(mt.present[t]):
+            union[t] |= mt.mask(t, k)
+    import cv2
+
+    near = np.stack([cv2.dilate(truth[t].any(0).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0 for t in range(T)])
+    shadow = (shade > 0.15) & ~near  # shadow at least 3 px from a person (edges are another matter)
+    assert shadow.sum() > 2000
+    assert (union & shadow).sum() / shadow.sum() < 0.05, (union & shadow).sum() / shadow.sum()
+
+
+def test_ids_survive_the_crossing(tracked):
+    _, _, truth, mt = tracked
+    best, iou = _per_person(mt, truth)
+    assert best[0] != best[1]
+    apart = _apart(truth)
+    before = np.flatnonzero(apart[: T // 2])
+    after = T // 2 + np.flatnonzero(apart[T // 2:])
+    # the same track follows each person before and after the crossing
+    for p in range(2):
+        assert iou[before, p].mean() > 0.7 and iou[after, p].mean() > 0.7, (p, iou[before, p].mean(),
+                                                                            iou[after, p].mean())
+    # during contact the near (occluding) person keeps most of its mask
+    touching = ~apart
+    assert iou[touching, 0].mean() > 0.6, iou[touching, 0].mean()
+
+
+def test_track_cli_writes_masks_and_picture(tracked, cli):
+    root, _, truth, mt = tracked
+    assert mt.image_size == (W, H) and len(mt.frame_times) == T
+    assert np.allclose(mt.frame_times, np.arange(T) / 30.0, atol=1e-3)
+    assert (root / "report" / "tracks" / "cam0.png").stat().st_size > 1000
+    # second run: inputs unchanged -> skipped, says so
+    r2 = cli("track", str(root), "--backend", "builtin", "--json")
+    assert r2.code == 0 and "\"skipped\": true" in r2.out, r2
+
+
+def test_track_cli_user_errors(tracked, cli, tmp_path):
+    root = tracked[0]
+    r = cli("track", str(root), "--backend", "nope")
+    assert r.code == 2 and "unknown --backend" in r.err and "Traceback" not in r.err
+    r = cli("track", str(root), "--backend", "gt")
+    assert r.code == 2 and "no ground-truth masks" in r.err
+    r = cli("track", str(root), "--backend", "sam2")
+    assert r.code == 2 and "--sam2-checkpoint" in r.err
+    r = cli("track", str(root), "--prompts", str(tmp_path / "p.toml"))
+    assert r.code == 2 and "--prompts is for --backend sam2" in r.err
+    r = cli("track", str(tmp_path / "missing"))
+    assert r.code == 2 and "workspace not found" in r.err
