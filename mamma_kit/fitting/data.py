@@ -1,0 +1,222 @@
+"""What the fit reads from a workspace, as arrays on the output frames.
+
+Output frames: the frames of the reference camera (timing.toml's reference, else the first
+selected camera) inside the reference-time interval that every selected camera covers,
+on the reference clock. Each view's landmarks are taken at the output frame's exact
+reference time: a camera frame exposed at camera time t was exposed at reference time
+clock.to_ref(t), and the view's landmarks are interpolated linearly between its two frames
+around the output time (sub-frame offsets compensated, not rounded). Where only one of the
+two frames has the person, it is used if it lies within a quarter frame of the output time.
+
+Arrays (C cameras, P people, T frames, L landmarks), camera-major:
+xy (C, P, T, L, 2) px, sigma (C, P, T, L, 2) px, vis (C, P, T, L) visibility in [0, 1]
+(0 where the view has no observation), contact and floor (C, P, T, L) probabilities,
+present (C, P, T) bool.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mamma_kit.core import log
+from mamma_kit.core.calibfile import read_calibration
+from mamma_kit.core.camera import Rig
+from mamma_kit.core.clock import ClockModel
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.tracks import LandmarkTracks
+from mamma_kit.core.workspace import Workspace
+
+NEAR_FRAC = 0.25  # use a lone neighbouring frame when within this fraction of a frame interval
+MIN_SIGMA = 0.25  # px: the fit divides by sigma
+
+
+@dataclass
+class FitData:
+    rig: Rig
+    clocks: dict[str, ClockModel]
+    reference: str  # the clock the frame times are on (a camera name, or e.g. "scene")
+    frame_camera: str  # whose frames the output frames are
+    frame_times: np.ndarray  # (T,) reference clock
+    fps: float
+    person_ids: list[int]
+    xy: np.ndarray
+    sigma: np.ndarray
+    vis: np.ndarray
+    contact: np.ndarray
+    floor: np.ndarray
+    present: np.ndarray
+    landmark_set: str = ""
+    notes: list[str] = field(default_factory=list)
+    inputs: list[Path] = field(default_factory=list)
+
+    @property
+    def cameras(self) -> list[str]:
+        return self.rig.names
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        C, P, T, L = self.vis.shape
+        return C, P, T, L
+
+    def slice_frames(self, s: slice) -> "FitData":
+        """The same data over a range of output frames (a chunk)."""
+        sub = lambda a: a[:, :, s]  # noqa: E731
+        return FitData(self.rig, self.clocks, self.reference, self.frame_camera, self.frame_times[s], self.fps,
+                       self.person_ids, sub(self.xy), sub(self.sigma), sub(self.vis), sub(self.contact),
+                       sub(self.floor), sub(self.present), self.landmark_set, self.notes, self.inputs)
+
+
+def _read_clocks(ws: Workspace, names: list[str]) -> tuple[dict[str, ClockModel], str, list[str]]:
+    notes = []
+    if ws.timing.is_file():
+        from mamma_kit.core.timingfile import read_timing
+
+        clocks, info = read_timing(ws.timing)
+        missing = [n for n in names if n not in clocks]
+        if missing:
+            raise UserError(f"timing.toml has no clock for {', '.join(missing)}",
+                            "run `mamma-kit sync WORKSPACE` again with these cameras")
+        ref = str(info.get("reference") or names[0])
+        return {n: clocks[n] for n in names}, ref, notes
+    notes.append("no timing.toml: cameras assumed synchronised (identity clocks)")
+    log.warn(notes[-1] + "; run `mamma-kit sync` for unsynchronised cameras")
+    return {n: ClockModel() for n in names}, names[0], notes
+
+
+def _person_map(ws: Workspace, tracks: dict[str, LandmarkTracks]) -> tuple[dict[str, dict[int, int]], list[str]]:
+    """camera -> {track id: person id}, from identities.json when there is one."""
+    notes = []
+    if ws.identities.is_file():
+        try:
+            from mamma_kit.core.identities import read_identities
+        except ImportError:  # the matching stage has not landed in this install
+            read_identities = None
+        if read_identities is not None:
+            ident = read_identities(ws.identities)
+            out = {c: {int(t): int(p) for t, p in ident.assignments.get(c, {}).items()} for c in tracks}
+            return out, notes
+    notes.append("no identities.json: each view's track id is taken as the person id")
+    log.info("fit: " + notes[-1] + " (true for ground-truth landmarks; run `mamma-kit match` otherwise)")
+    return {c: {int(t): int(t) for t in lt.track_ids} for c, lt in tracks.items()}, notes
+
+
+def select_cameras(rig: Rig, cameras: int | None, camera_list: list[str] | None) -> list[str]:
+    if camera_list:
+        bad = [c for c in camera_list if c not in rig]
+        if bad:
+            raise UserError(f"camera(s) {', '.join(bad)} not in calibration.toml",
+                            f"cameras: {', '.join(rig.names)}")
+        return list(dict.fromkeys(camera_list))
+    if cameras is not None:
+        from mamma_kit.fitting.cameras import pick_cameras
+
+        return pick_cameras(rig, cameras)
+    return rig.names
+
+
+def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[str] | None = None,
+                  n_landmarks: int | None = None) -> FitData:
+    """Read calibration, timing, landmarks and identities of a workspace (see module doc)."""
+    if not ws.calibration.is_file():
+        raise UserError(f"{ws.root} has no calibration.toml", "run `mamma-kit calibrate WORKSPACE` first")
+    rig_all, _ = read_calibration(ws.calibration)
+    have = [n for n in rig_all.names if ws.landmarks_file(n).is_file()]
+    if not have:
+        raise UserError(f"{ws.root} has no landmarks (landmarks/<cam>.npz)", "run `mamma-kit landmarks WORKSPACE` first")
+    if camera_list:
+        missing = [c for c in camera_list if c in rig_all and not ws.landmarks_file(c).is_file()]
+        if missing:
+            raise UserError(f"no landmarks for {', '.join(missing)}", "run `mamma-kit landmarks` for them")
+    names = select_cameras(rig_all.subset(have), cameras, camera_list)
+    if len(names) < 2:
+        log.warn(f"fitting from {len(names)} camera: depth comes only from the body model")
+    rig = rig_all.subset(names)
+    clocks, reference, notes = _read_clocks(ws, names)
+    tracks = {n: LandmarkTracks.load(ws.landmarks_file(n)) for n in names}
+    L = {lt.n_landmarks for lt in tracks.values()}
+    if len(L) != 1 or (n_landmarks is not None and L != {n_landmarks}):
+        raise UserError(f"landmark files hold {sorted(L)} landmarks, the body model has {n_landmarks}",
+                        "run `mamma-kit landmarks` with weights made for this body model's landmark set")
+    L = L.pop()
+    for n, lt in tracks.items():
+        if tuple(lt.image_size) != tuple(rig[n].size):
+            raise UserError(f"landmarks/{n}.npz is for {lt.image_size[0]}x{lt.image_size[1]} images, "
+                            f"calibration.toml says {rig[n].size[0]}x{rig[n].size[1]}",
+                            "calibrate and run landmarks on the same videos")
+    pmap, n2 = _person_map(ws, tracks)
+    notes += n2
+    person_ids = sorted({p for m in pmap.values() for p in m.values()})
+    if not person_ids:
+        raise UserError("no person is matched in any view", "check identities.json (`mamma-kit match`)")
+
+    frame_camera = reference if reference in names else names[0]
+    ref_times = {n: clocks[n].to_ref(tracks[n].frame_times) for n in names}
+    lo = max(float(t[0]) for t in ref_times.values() if len(t))
+    hi = min(float(t[-1]) for t in ref_times.values() if len(t))
+    ft = ref_times[frame_camera]
+    eps = 1e-6
+    out_t = ft[(ft >= lo - eps) & (ft <= hi + eps)]
+    if len(out_t) < 1:
+        raise UserError("the cameras' recordings do not overlap in time", "check timing.toml (`mamma-kit sync`)")
+    d = np.diff(ft)
+    fps = float(1.0 / np.median(d)) if len(d) else 30.0
+
+    C, P, T = len(names), len(person_ids), len(out_t)
+    xy = np.zeros((C, P, T, L, 2), np.float32)
+    sigma = np.ones((C, P, T, L, 2), np.float32)
+    vis = np.zeros((C, P, T, L), np.float32)
+    contact = np.zeros((C, P, T, L), np.float32)
+    floor = np.zeros((C, P, T, L), np.float32)
+    present = np.zeros((C, P, T), bool)
+    pindex = {p: i for i, p in enumerate(person_ids)}
+    for ci, n in enumerate(names):
+        lt = tracks[n]
+        tr = ref_times[n]
+        if len(tr) == 0:
+            continue
+        i0 = np.clip(np.searchsorted(tr, out_t, side="right") - 1, 0, max(len(tr) - 2, 0))
+        i1 = np.minimum(i0 + 1, len(tr) - 1)
+        span = np.where(i1 > i0, tr[i1] - tr[i0], 1.0)
+        a = np.clip((out_t - tr[i0]) / span, 0.0, 1.0)
+        for k, tid in enumerate(lt.track_ids):
+            p = pmap[n].get(int(tid))
+            if p is None:
+                continue
+            pi = pindex[p]
+            ok = lt.valid[:, k]
+            v0, v1 = ok[i0], ok[i1]
+            both = v0 & v1
+            use0 = ~both & v0 & (a <= NEAR_FRAC)
+            use1 = ~both & v1 & (a >= 1 - NEAR_FRAC)
+            w1 = np.where(both, a, np.where(use1, 1.0, 0.0))
+            take = (both | use0 | use1) & ~present[ci, pi]  # a person's first track wins a frame
+            if not take.any():
+                continue
+            w1t = w1[take][:, None]
+            f0, f1 = i0[take], i1[take]
+
+            def mix(arr):
+                a0, a1 = arr[f0, k].astype(np.float64), arr[f1, k].astype(np.float64)
+                a0 = np.where(np.isfinite(a0), a0, a1)
+                a1 = np.where(np.isfinite(a1), a1, a0)
+                w = w1t.reshape(w1t.shape + (1,) * (a0.ndim - 2))
+                return (1 - w) * a0 + w * a1
+
+            xy_m = mix(lt.xy)
+            bad = ~np.isfinite(xy_m).all(-1)
+            xy[ci, pi, take] = np.nan_to_num(xy_m)
+            sigma[ci, pi, take] = np.maximum(np.nan_to_num(mix(lt.sigma), nan=1e3), MIN_SIGMA)
+            vv = np.clip(np.nan_to_num(mix(lt.visibility)), 0, 1)
+            vv[bad] = 0.0
+            vis[ci, pi, take] = vv
+            contact[ci, pi, take] = np.clip(np.nan_to_num(mix(lt.contact)), 0, 1)
+            floor[ci, pi, take] = np.clip(np.nan_to_num(mix(lt.floor_contact)), 0, 1)
+            present[ci, pi, take] = True
+    sets = {lt.landmark_set for lt in tracks.values()}
+    inputs = [ws.calibration] + [ws.landmarks_file(n) for n in names]
+    inputs += [p for p in (ws.timing, ws.identities) if p.is_file()]
+    return FitData(rig, clocks, reference, frame_camera, out_t, fps, person_ids, xy, sigma, vis, contact, floor,
+                   present, ",".join(sorted(s for s in sets if s)), notes, inputs)

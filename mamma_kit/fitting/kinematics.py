@@ -1,0 +1,276 @@
+"""The body at the fit's landmark vertices with what Gauss-Newton needs: per-vertex lever
+arms for every joint that moves it, and the Jacobian w.r.t. the shape coefficients.
+
+Poses are held as local rotation matrices (P, T, 55, 3, 3). A Gauss-Newton step turns joint
+j's whole subtree by a small world-frame rotation eps_j about the joint: R_j <- exp([G_par^T
+eps_j]) R_j (G_par: the parent's world rotation), which moves a posed vertex by
+-[u_lj]x eps_j with u_lj = sum_{k in subtree(j)} w_lk (A_k v_l) - (sum of those w_lk) p_j.
+Each vertex depends on the few joints on its skinning joints' chains ("influence" slots,
+padded to M per vertex), so the Jacobian is built per body part (parts share their chains)
+and the normal equations stay small dense blocks.
+
+The forward pass equals body.lbs.pose_restricted (checked in tests) and runs in float64
+without autograd; the L-BFGS stages use body.lbs itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from mamma_kit.body import skeleton as sk
+from mamma_kit.body.lbs import axis_angle_to_matrix, forward_kinematics
+
+DTYPE = torch.float64  # state (rotations, translations, shapes) and linear solves
+CDTYPE = torch.float32  # Jacobians, projections, lever arms: memory traffic dominates here
+
+
+def skew(v: torch.Tensor) -> torch.Tensor:
+    """(..., 3) -> (..., 3, 3) cross-product matrices [v]x."""
+    x, y, z = v.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(*v.shape, 3)
+
+
+def so3_exp(w: torch.Tensor) -> torch.Tensor:
+    return axis_angle_to_matrix(w)
+
+
+def so3_log(R: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) -> axis-angle (..., 3), stable near 0 and pi."""
+    tr = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
+    cos = ((tr - 1) / 2).clamp(-1.0, 1.0)
+    th = torch.arccos(cos)
+    vee = torch.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    sin = torch.sin(th)
+    small = th < 1e-4
+    fac = torch.where(small, 0.5 + th * th / 12, th / (2 * torch.where(small, torch.ones_like(sin), sin)))
+    w = vee * fac.unsqueeze(-1)
+    near_pi = th > np.pi - 1e-3
+    if bool(near_pi.any()):  # axis from the diagonal of (R + I) / 2 = a a^T
+        B = (R[near_pi] + torch.eye(3, dtype=R.dtype)) / 2
+        diag = torch.diagonal(B, dim1=-2, dim2=-1).clamp(min=0)
+        i = diag.argmax(-1)
+        col = B[torch.arange(len(i)), :, i]
+        a = col / col.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        s = torch.sign((a * vee[near_pi]).sum(-1))
+        s = torch.where(s == 0, torch.ones_like(s), s)
+        w = w.clone()
+        w[near_pi] = a * (th[near_pi] * s).unsqueeze(-1)
+    return w
+
+
+def so3_left_jacobian_inv(w: torch.Tensor) -> torch.Tensor:
+    """J_l^{-1}(w) (..., 3, 3): log(exp(d) exp(w)) ~ w + J_l^{-1}(w) d for small d."""
+    th2 = (w * w).sum(-1)
+    th = torch.sqrt(th2.clamp(min=1e-24))
+    small = th < 1e-4
+    ths = torch.where(small, torch.ones_like(th), th)
+    c = torch.where(small, torch.full_like(th, 1.0 / 12),
+                    1 / ths ** 2 - (1 + torch.cos(ths)) / (2 * ths * torch.sin(ths).clamp(min=1e-12)))
+    W = skew(w)
+    eye = torch.eye(3, dtype=w.dtype).expand(W.shape)
+    return eye - 0.5 * W + c[..., None, None] * (W @ W)
+
+
+@dataclass
+class Group:
+    """Landmarks of one body part and the parameter columns they touch.
+
+    lm (n,) landmark indices; cols (c = 3 J_g + 3,) parameter columns (the group's joint
+    blocks, then translation); the group Jacobian is a flat (n * 3 * c) array per block:
+    template (n * 3 * c,) holds its constant entries (translation = identity), and the
+    six non-zero entries of -[u]x of every valid influence slot (l_sel, m_sel) go to
+    positions pos (n_valid, 6) with signs sign (6,) taken from u components comp (6,).
+    nflat: (c * c,) flat positions of the group's normal matrix in the full one."""
+
+    lm: torch.Tensor
+    cols: torch.Tensor
+    l_sel: torch.Tensor
+    m_sel: torch.Tensor
+    pos: torch.Tensor
+    template: torch.Tensor
+    nflat: torch.Tensor
+
+    @property
+    def ncols(self) -> int:
+        return len(self.cols)
+
+
+# -[u]x = [[0, uz, -uy], [-uz, 0, ux], [uy, -ux, 0]]: (row, col, u component, sign)
+_SKEW_NEG = [(0, 1, 2, 1.0), (0, 2, 1, -1.0), (1, 0, 2, -1.0), (1, 2, 0, 1.0), (2, 0, 1, 1.0), (2, 1, 0, -1.0)]
+SKEW_COMP = torch.tensor([e[2] for e in _SKEW_NEG])
+SKEW_SIGN = torch.tensor([e[3] for e in _SKEW_NEG], dtype=CDTYPE)
+
+
+class BodyKinematics:
+    """Restricted LBS at a vertex set (default: the model's landmarks) with GN structure."""
+
+    def __init__(self, model, vertex_ids: np.ndarray | None = None):
+        rb = model.restricted(vertex_ids)
+        self.model = model
+        self.ids = rb.ids
+        self.N = len(self.ids)
+        self.v_template = rb.v_template.to(DTYPE)
+        self.shapedirs = rb.shapedirs.to(DTYPE)
+        self.posedirs = None if rb.posedirs is None else rb.posedirs.to(DTYPE)
+        self.skin_idx = rb.skin_idx
+        self.skin_w = rb.skin_w.to(DTYPE)
+        self.W = rb.W.to(DTYPE)  # (N, 55)
+        self.J_template = model.J_template.to(DTYPE)
+        self.J_shapedirs = model.J_shapedirs.to(DTYPE)
+        self.parents = model.parents.numpy().astype(np.int64)
+        J = len(self.parents)
+        self.J = J
+        # sub[j, k]: joint k is in the subtree of j (k == j included)
+        sub = np.eye(J, dtype=bool)
+        for k in range(J):
+            a = self.parents[k]
+            while a >= 0:
+                sub[a, k] = True
+                a = self.parents[a]
+        self.sub = sub
+        # ancestors-or-self excluding the root, for d p / d betas
+        self.anc_noroot = torch.as_tensor(sub.T.astype(np.float64) * (np.arange(J) != 0)[None], dtype=DTYPE)
+        # influence slots: joints j with sum_k w_lk [skin_k in sub(j)] > 0
+        idx = self.skin_idx.numpy()
+        w = self.skin_w.numpy()
+        coef = sub[:, idx] * w[None]  # (J, N, K)
+        s = coef.sum(-1)  # (J, N)
+        M = int((s > 1e-9).sum(0).max())
+        infl = np.full((self.N, M), J, np.int64)  # J = dummy joint (zero lever)
+        cnk = np.zeros((self.N, M, idx.shape[1]))
+        for n in range(self.N):  # setup only (once per model)
+            js = np.flatnonzero(s[:, n] > 1e-9)
+            infl[n, :len(js)] = js
+            cnk[n, :len(js)] = coef[js, n]
+        self.M = M
+        self.infl = torch.as_tensor(infl)
+        self.coef = torch.as_tensor(cnk, dtype=DTYPE)
+        self.coef_sum = self.coef.sum(-1)  # (N, M)
+        self.part = np.asarray(model.vertex_part)[self.ids]
+        self._groups: dict = {}
+        c = lambda a: None if a is None else a.to(CDTYPE)  # noqa: E731
+        self.f32 = {k: c(getattr(self, k)) for k in ("v_template", "shapedirs", "posedirs", "skin_w", "W",
+                                                     "J_template", "J_shapedirs", "coef", "coef_sum",
+                                                     "anc_noroot")}
+
+    # ---- shape ------------------------------------------------------------------------
+    def rest(self, betas: torch.Tensor, dtype=DTYPE) -> tuple[torch.Tensor, torch.Tensor]:
+        """betas (P, B) -> rest joints (P, 55, 3), rest vertices (P, N, 3)."""
+        d = self.f32 if dtype == CDTYPE else self.__dict__
+        b = betas.to(dtype)
+        J = d["J_template"] + torch.einsum("jdb,pb->pjd", d["J_shapedirs"], b)
+        v = d["v_template"] + torch.einsum("ndb,pb->pnd", d["shapedirs"], b)
+        return J, v
+
+    # ---- pose -------------------------------------------------------------------------
+    @torch.no_grad()
+    def forward(self, betas: torch.Tensor, rot: torch.Tensor, transl: torch.Tensor, jac: bool = False,
+                shape_jac: bool = False, dtype=CDTYPE) -> dict:
+        """betas (P, B), rot (P, T, 55, 3, 3) local rotations, transl (P, T, 3).
+
+        Returns v (P, T, N, 3) posed vertices, joints (P, T, 55, 3), G (P, T, 55, 3, 3) world
+        rotations; with ``jac`` also u (P, T, N, M, 3) lever arms per influence slot; with
+        ``shape_jac`` also Jb (P, T, N, 3, B) = d v / d betas. Computed in ``dtype``.
+        """
+        d = self.f32 if dtype == CDTYPE else self.__dict__
+        Jr, v0 = self.rest(betas, dtype)
+        P, T = rot.shape[:2]
+        rot = rot.to(dtype)
+        if self.posedirs is not None:
+            feat = (rot[:, :, 1:] - torch.eye(3, dtype=dtype)).flatten(-3)  # (P, T, 486)
+            v0 = v0[:, None] + (feat @ d["posedirs"]).reshape(P, T, self.N, 3)
+        else:
+            v0 = v0[:, None]
+        G, p = forward_kinematics(rot, Jr[:, None], self.parents)  # (P, T, 55, 3, 3), (P, T, 55, 3)
+        tA = p - (G @ Jr[:, None].unsqueeze(-1)).squeeze(-1)  # translation of each joint transform
+        A = torch.cat([G, tA.unsqueeze(-1)], -1)  # (P, T, 55, 3, 4)
+        vh = torch.cat([v0, torch.ones_like(v0[..., :1])], -1)  # (P, T|1, N, 4)
+        x = torch.einsum("ptnkij,ptnj->ptnki", A[:, :, self.skin_idx], vh.expand(P, T, self.N, 4))
+        tr = transl.to(dtype)[:, :, None]
+        v = (x * d["skin_w"][..., None]).sum(-2) + tr
+        out = {"v": v, "joints": p + tr, "G": G, "p": p}
+        if jac:
+            pz = torch.cat([p, torch.zeros_like(p[:, :, :1])], 2)  # dummy joint J -> zero
+            u = torch.einsum("nmk,ptnkd->ptnmd", d["coef"], x) - d["coef_sum"][..., None] * pz[:, :, self.infl]
+            out["u"] = u
+        if shape_jac:
+            Gt = torch.einsum("nk,ptkij->ptnij", d["W"], G)  # (P, T, N, 3, 3) blended rotation
+            Jb = Gt @ d["shapedirs"]  # (P, T, N, 3, B)
+            SJ = d["J_shapedirs"]  # (55, 3, B)
+            dSJ = SJ - torch.cat([torch.zeros_like(SJ[:1]), SJ[self.parents[1:]]], 0)
+            Gpar = torch.cat([torch.eye(3, dtype=dtype).expand(P, T, 1, 3, 3), G[:, :, self.parents[1:]]], 2)
+            D = SJ[0] + torch.einsum("ka,ptaij->ptkij", d["anc_noroot"], Gpar @ dSJ)  # (P, T, 55, 3, B)
+            E = D - G @ SJ
+            Jb = Jb + torch.einsum("nk,ptkij->ptnij", d["W"], E)
+            out["Jb"] = Jb
+        return out
+
+    # ---- Jacobian structure ------------------------------------------------------------
+    def groups(self, active: tuple[int, ...]) -> tuple[list[Group], int]:
+        """Per-part groups for an active joint list; returns (groups, number of columns)."""
+        key = tuple(active)
+        if key in self._groups:
+            return self._groups[key]
+        act = np.asarray(active, np.int64)
+        pos = np.full(self.J + 1, -1, np.int64)
+        pos[act] = np.arange(len(act))
+        infl = self.infl.numpy()
+        ncols = 3 * len(act) + 3
+        rows = np.array([e[0] for e in _SKEW_NEG])
+        colo = np.array([e[1] for e in _SKEW_NEG])
+        groups = []
+        for part in np.unique(self.part):
+            lm = np.flatnonzero(self.part == part)
+            sl = pos[infl[lm]]  # (n, M) active position or -1
+            js = np.unique(sl[sl >= 0])
+            local = np.full(len(act), -1, np.int64)
+            local[js] = np.arange(len(js))
+            c = 3 * len(js) + 3
+            l_sel, m_sel = np.nonzero(sl >= 0)
+            jl = local[sl[l_sel, m_sel]]
+            # flat position of entry (l, row a, column 3 jl + b) in an (n, 3, c) array
+            fpos = (l_sel[:, None] * 3 + rows[None]) * c + 3 * jl[:, None] + colo[None]
+            tmpl = np.zeros((len(lm), 3, c))
+            tmpl[:, [0, 1, 2], [c - 3, c - 2, c - 1]] = 1.0
+            cols = np.concatenate([(3 * js[:, None] + np.arange(3)).reshape(-1), ncols - 3 + np.arange(3)])
+            nflat = (cols[:, None] * ncols + cols[None, :]).reshape(-1)
+            groups.append(Group(torch.as_tensor(lm), torch.as_tensor(cols), torch.as_tensor(l_sel),
+                                torch.as_tensor(m_sel), torch.as_tensor(fpos.reshape(-1)),
+                                torch.as_tensor(tmpl.reshape(-1), dtype=CDTYPE), torch.as_tensor(nflat)))
+        self._groups[key] = (groups, ncols)
+        return groups, ncols
+
+    def group_jacobian(self, gr: Group, u: torch.Tensor) -> torch.Tensor:
+        """(B, n_g * 3, c_g) Jacobian of a group's vertices from lever arms u (P, T, N, M, 3)."""
+        P, T = u.shape[:2]
+        ug = u[:, :, gr.lm[gr.l_sel], gr.m_sel]  # (P, T, n_valid, 3)
+        vals = ug[..., SKEW_COMP] * SKEW_SIGN  # (P, T, n_valid, 6)
+        J = gr.template.to(u.dtype).expand(P * T, -1).clone()
+        J.index_copy_(1, gr.pos, vals.reshape(P * T, -1))
+        return J.view(P * T, len(gr.lm) * 3, gr.ncols)
+
+
+def rotmats_from_params(params: dict, P: int, T: int) -> torch.Tensor:
+    """SMPL-X parameter dict (axis-angle arrays (P, T, n)) -> local rotations (P, T, 55, 3, 3)."""
+    aa = torch.zeros(P, T, sk.NUM_JOINTS, 3, dtype=DTYPE)
+    off = 0
+    for k, n in sk.POSE_PARAMS.items():
+        if k in params and params[k] is not None:
+            aa[:, :, off // 3: (off + n) // 3] = torch.as_tensor(np.asarray(params[k]), dtype=DTYPE).reshape(P, T, n // 3, 3)
+        off += n
+    return axis_angle_to_matrix(aa)
+
+
+def params_from_rotmats(rot: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Local rotations (..., 55, 3, 3) -> SMPL-X pose keys (axis-angle)."""
+    aa = so3_log(rot.to(DTYPE))
+    out = {}
+    off = 0
+    for k, n in sk.POSE_PARAMS.items():
+        out[k] = aa[..., off // 3: (off + n) // 3, :].reshape(*aa.shape[:-2], n)
+        off += n
+    return out
