@@ -189,7 +189,10 @@ def write_crop_shards(recipe_ref, out: str | Path, n: int, seed: int | None = No
                     break
     if buf["images"]:
         shards.append(_flush(out, len(shards), buf))
+    from mamma_kit.body.skeleton import LANDMARK_PART_NAMES
+
     meta = {"landmark_set": f"{body.name}:{body.landmarks.source}", "body_model": body.name,
+            "landmark_parts": body.landmark_parts.tolist(), "landmark_part_names": list(LANDMARK_PART_NAMES),
             "body_sha256": body.sha256, "recipe": recipe.name, "seed": recipe.seed, "count": made,
             "crop_hw": list(CROP_HW), "context": CONTEXT, "shards": shards, "scene_kinds": kinds_used,
             "seconds": round(time.perf_counter() - t0, 1)}
