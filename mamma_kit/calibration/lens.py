@@ -16,7 +16,7 @@ def undistort_exact(cam: Camera, xy_n2: np.ndarray) -> np.ndarray:
     projection agree exactly."""
     xy = np.asarray(xy_n2, np.float64).reshape(-1, 2)
     xd = cam.pixels_to_normalized(xy)
-    if not np.any(cam.dist):
+    if cam.model != "fisheye" and not np.any(cam.dist):  # (a zero fisheye is still equidistant)
         return xd
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     if cam.model == "fisheye":

@@ -67,14 +67,14 @@ def camera_figure(result, name: str, path: Path) -> str:
     colors = {"shared": "tab:green", "hold": "tab:blue", "view": "tab:orange", "sync": "tab:purple"}
     vals = diag["per_view_rms_px"]
     ax.bar(np.arange(len(vals)), vals, color=[colors.get(kd, "grey") for kd in kinds], width=0.85)
-    for kd, col in colors.items():
-        if kd in kinds:
-            ax.bar([], [], color=col, label={"shared": "board seen with other cameras", "hold": "still board",
-                                             "view": "intrinsics view", "sync": "simultaneous frames"}[kd])
+    from matplotlib.patches import Patch
+
+    labels = {"shared": "board seen with other cameras", "hold": "still board, this camera only",
+              "view": "intrinsics view", "sync": "simultaneous frames"}
     ax.axhline(diag["rms_px"], color="k", lw=0.8, ls="--")
     ax.set_xlabel("view (board pose)")
     ax.set_ylabel("rms (px)")
-    ax.legend(fontsize=7)
+    ax.legend(handles=[Patch(color=colors[k], label=labels[k]) for k in colors if k in kinds], fontsize=7)
     ax.set_title(f"per-view error: worst {diag['per_view_max_px']:.3f} px over {len(vals)} views", fontsize=9)
     # coverage
     ax = axs[1, 0]
@@ -123,7 +123,7 @@ def connectivity_figure(result, path: Path) -> str:
             continue
         pa, pb = rig[a].center, rig[b].center
         ax.plot([pa[0], pb[0]], [pa[1], pb[1]], "-", color="tab:green", lw=1 + 5 * n / mx, alpha=0.7, zorder=1)
-        mid = (pa + pb) / 2
+        mid = 0.62 * pa + 0.38 * pb  # off-centre so crossing edges keep their labels apart
         ax.text(mid[0], mid[1], str(n), fontsize=9, ha="center", va="center",
                 bbox=dict(boxstyle="round", fc="white", ec="tab:green", lw=0.5), zorder=3)
     ax.scatter(C[:, 0], C[:, 1], s=220, c="tab:blue", zorder=2)

@@ -83,7 +83,7 @@ def _scaled_intrinsics(cam: Camera, size: tuple[int, int], name: str, src: str) 
 def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | None = None, *,
               intrinsics: Rig | None = None, intrinsics_src: str = "--intrinsics",
               clocks: dict[str, ClockModel] | None = None, progress: bool = True,
-              detections: dict[str, Detections] | None = None) -> CalibrationResult:
+              detections: dict[str, Detections] | None = None, cache_dir: Path | None = None) -> CalibrationResult:
     """Calibrate a rig from one board video per camera (see the module docstring)."""
     st = settings or Settings()
     names = list(videos)
@@ -100,9 +100,7 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     dets: dict[str, Detections] = dict(detections or {})
     for n in names:
         if n not in dets:
-            log.info(f"detecting the board in {videos[n]}")
-            dets[n] = detect_video(videos[n], spec, n, max_fps=st.max_fps, max_detect_width=st.max_detect_width,
-                                   progress=progress)
+            dets[n] = _cached_detections(videos[n], spec, n, st, cache_dir, progress)
     for n in names:
         d = dets[n]
         if len(d.usable(spec)) == 0:
@@ -306,6 +304,34 @@ def write_outputs(result: CalibrationResult, out: Path, spec: BoardSpec, report_
         result.diagnostics["figures"] = figures
     write_calibration(out, result.rig, result.diagnostics, result.camera_diagnostics, producer)
     return figures
+
+
+def _cached_detections(video: Path, spec: BoardSpec, name: str, st: Settings, cache_dir: Path | None,
+                       progress: bool) -> Detections:
+    """Detections of one video, reused from ``cache_dir`` when the video (size, mtime), the
+    board spec and the detection settings are unchanged."""
+    from mamma_kit.core.io import read_npz, sha256_json, write_npz
+
+    key = None
+    if cache_dir is not None:
+        stt = Path(video).stat()
+        key = sha256_json({"video": str(Path(video).resolve()), "size": stt.st_size, "mtime": stt.st_mtime_ns,
+                           "spec": spec.to_dict(), "fps": st.max_fps, "width": st.max_detect_width, "v": 1})
+        f = Path(cache_dir) / f"{name}.npz"
+        if f.is_file():
+            try:
+                z = read_npz(f, "detection cache")
+                if str(z["key"]) == key:
+                    log.info(f"{name}: board detections reused from {f}")
+                    return Detections(name, str(video), tuple(int(v) for v in z["size"]), z["times_f"], z["xy_fn2"],
+                                      z["n_markers_f"], int(z["rotation_deg"]), int(z["frame_step"]))
+            except Exception:
+                pass
+    log.info(f"detecting the board in {video}")
+    d = detect_video(video, spec, name, max_fps=st.max_fps, max_detect_width=st.max_detect_width, progress=progress)
+    if key is not None:
+        write_npz(Path(cache_dir) / f"{name}.npz", key=np.array(key), **d.to_npz_dict())
+    return d
 
 
 def _near_partner(names, graph, dets, runs) -> dict[str, str]:

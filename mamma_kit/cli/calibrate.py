@@ -118,7 +118,8 @@ def calibrate_cmd(
             return
     t0 = time.perf_counter()
     result = calibrate({n: Path(p) for n, p in videos.items()}, spec, settings, intrinsics=rig_intr,
-                       intrinsics_src=str(intrinsics), clocks=clocks, progress=not quiet)
+                       intrinsics_src=str(intrinsics), clocks=clocks, progress=not quiet,
+                       cache_dir=ws.cache_dir / "board-detections" if ws is not None else None)
     prod = producer("calibrate " + " ".join(str(t) for t in targets))
     figures = write_outputs(result, out, spec, None if no_figures else report, prod)
     if manifest is not None and out == ws.calibration:

@@ -297,7 +297,10 @@ class _Texture:
     def __init__(self, spec: BoardSpec, px_per_square: int = 256, margin_squares: float = 0.3):
         self.spec = spec
         p = int(px_per_square)
-        margin = int(round(margin_squares * p))
+        # every level must halve exactly (an odd size would shift texels by up to half a
+        # texel): a power-of-two square size and a margin of whole 32-texel blocks
+        p = 1 << max(3, int(np.round(np.log2(p))))
+        margin = max(32, int(round(margin_squares * p / 32)) * 32)
         grey = spec.image(p, margin_px=margin).astype(np.float32)
         img = np.dstack([grey, np.ones_like(grey)])
         self.levels = []  # (image, px per metre, margin px)
@@ -305,6 +308,8 @@ class _Texture:
         while True:
             self.levels.append((img, ppm, margin))
             if p <= 8:
+                break
+            if img.shape[0] % 2 or img.shape[1] % 2:
                 break
             img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
             p //= 2
@@ -412,6 +417,7 @@ class BoardRenderer:
         if o_b[2] < 0:  # printed face towards the camera
             f = 0.5 * (self.cam.K[0, 0] + self.cam.K[1, 1])
             # texture level from the sample footprint at the board plane's nearest point
+            # texture level from the sub-pixel sample footprint at the board plane's nearest point
             img, ppm, margin = self.tex.level_for(max(abs(dn), 1e-3) / (f * s))
         else:  # the back of the board: plain grey card
             img, ppm, margin = self.tex.levels[-1]

@@ -1,0 +1,137 @@
+"""Board specs, printing at true scale, and the synthetic board renderer's geometry."""
+
+from __future__ import annotations
+
+import re
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mamma_kit.calibration.board import BoardSpec, load_board_spec, print_board, spec_from_dict
+from mamma_kit.calibration.lens import undistort_exact
+from mamma_kit.core.camera import Camera, distort_normalized
+from mamma_kit.core.errors import UserError
+from mamma_kit.synth.board import R_WORLD_FLOOR_BOARD, BoardRenderer, _facing_rotation, plan_session
+
+from conftest import make_ring_rig
+
+
+def test_builtin_specs_load_and_describe():
+    for name in ("charuco-a1", "charuco-a3", "charuco-a4"):
+        s = load_board_spec(name)
+        assert s.n_corners == (s.squares_x - 1) * (s.squares_y - 1)
+        assert s.corners_b3.shape == (s.n_corners, 3)
+        # corner 0 sits one square in from the top-left corner (OpenCV's layout)
+        assert np.allclose(s.corners_b3[0], [s.square_m, s.square_m, 0])
+        assert np.allclose(s.cv_board().getChessboardCorners(), s.corners_b3)
+
+
+@pytest.mark.parametrize("bad, words", [
+    ({"squares_x": 5, "squares_y": 7, "square_m": 0.04}, "missing marker_m"),
+    ({"squares_x": 5, "squares_y": 7, "square_m": 0.04, "marker_m": 0.05}, "smaller than"),
+    ({"squares_x": 5, "squares_y": 7, "square_m": 40, "marker_m": 30}, "metres"),
+    ({"squares_x": 5, "squares_y": 7, "square_m": 0.04, "marker_m": 0.03, "dictionary": "DICT_9X9_5"}, "dictionary"),
+    ({"squares_x": 5, "squares_y": 7, "square_m": 0.04, "marker_m": 0.03, "legacy": "yes"}, "true or false"),
+    ({"squares_x": 5, "squares_y": 7, "square_m": 0.04, "marker_m": 0.03, "colour": 1}, "unknown field"),
+    ({"squares_x": 20, "squares_y": 20, "square_m": 0.04, "marker_m": 0.03, "dictionary": "DICT_4X4_50"},
+     "do not fit"),
+])
+def test_bad_specs_say_what_is_wrong(bad, words):
+    with pytest.raises(UserError, match=words):
+        spec_from_dict(bad)
+
+
+def test_png_prints_at_true_scale_and_is_detected(tmp_path):
+    spec = load_board_spec("charuco-a4")
+    dpi = 150
+    info = print_board(spec, tmp_path / "b.png", dpi=dpi)
+    img = cv2.imread(str(tmp_path / "b.png"), cv2.IMREAD_GRAYSCALE)
+    # page size in pixels = paper size at the dpi
+    w_mm, h_mm = info["page_mm"]
+    assert abs(img.shape[1] - w_mm / 25.4 * dpi) <= 1 and abs(img.shape[0] - h_mm / 25.4 * dpi) <= 1
+    cc, ci, _, _ = spec.detector().detectBoard(img)
+    assert ci is not None and len(ci) == spec.n_corners
+    xy = np.full((spec.n_corners, 2), np.nan)
+    xy[ci.ravel()] = cc.reshape(-1, 2)
+    # corner spacing = the square side at the printed scale (within a pixel)
+    px_per_m = dpi / 0.0254
+    n = spec.squares_x - 1
+    d = np.linalg.norm(xy[1:n] - xy[:n - 1], axis=1).mean()
+    assert abs(d - spec.square_m * px_per_m) < 1.0
+    # and the board sits where the layout says
+    x0, y0 = info["board_origin_mm"]
+    expect0 = (np.array([x0, y0]) / 1000 + spec.square_m) * px_per_m - 0.5
+    assert np.abs(xy[0] - expect0).max() < 1.5
+
+
+def test_pdf_page_is_the_paper_size(tmp_path, cli):
+    r = cli("board", "charuco-a3", "--out", tmp_path / "b.pdf", "--json")
+    assert r.code == 0, r
+    data = (tmp_path / "b.pdf").read_bytes()
+    box = re.search(rb"/MediaBox \[\s*([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)", data)
+    w_pt, h_pt = float(box.group(3)), float(box.group(4))
+    assert abs(w_pt - 297 / 25.4 * 72) < 0.5 and abs(h_pt - 420 / 25.4 * 72) < 0.5
+    r = cli("board", "charuco-a1", "--out", tmp_path / "c.pdf", "--paper", "A4")
+    assert r.code == 2 and "does not fit on A4" in r.err and "--paper A1" in r.err
+
+
+@settings(max_examples=25, deadline=None)
+@given(k1=st.floats(-0.18, 0.3), k2=st.floats(0.0, 0.15), p=st.floats(-0.002, 0.002), fisheye=st.booleans())
+def test_undistort_inverts_the_lens_model(k1, k2, p, fisheye):
+    """Within the image, where real lenses (monotonic radial distortion) are invertible."""
+    if fisheye:
+        cam = Camera("c", (640, 480), [[500, 0, 320], [0, 500, 240], [0, 0, 1]], [k1 / 4, k2 / 4, 0, 0], "fisheye")
+    else:
+        cam = Camera("c", (640, 480), [[500, 0, 320], [0, 500, 240], [0, 0, 1]], [k1, k2, p, -p, 0], "radtan")
+    xy = np.random.default_rng(0).uniform([0, 0], [639, 479], (500, 2))
+    xn = undistort_exact(cam, xy)
+    back = cam.normalized_to_pixels(distort_normalized(xn, cam.model, cam.dist))
+    assert np.abs(back - xy).max() < 1e-6
+
+
+@pytest.mark.parametrize("fisheye", [False, True])
+def test_rendered_corners_are_where_the_lens_model_projects_them(fisheye):
+    """Inverse-mapped rendering through a strongly distorting lens: detected corners agree
+    with the projection of the true corners (pooled over random poses: a rendering error
+    would show as a bias, detector noise averages out)."""
+    spec = load_board_spec("charuco-a3")
+    if fisheye:
+        cam = Camera("c", (480, 360), [[330, 0, 241.3], [0, 331, 178.9], [0, 0, 1]], [0.06, -0.02, 0.004, 0], "fisheye")
+    else:
+        cam = Camera("c", (480, 360), [[420, 0, 237.2], [0, 421, 182.4], [0, 0, 1]], [-0.28, 0.09, 0.001, -0.001, 0])
+    ren = BoardRenderer(cam, spec, supersample=2, seed=3)
+    errs = []
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        R = _facing_rotation(np.array([rng.normal(0, 0.25), rng.normal(0, 0.25), -1.0]), up=np.array([0, -1.0, 0]),
+                             roll=rng.uniform(-np.pi, np.pi))
+        # squares of at least ~25 px (smaller ones are limited by the detector, not the renderer)
+        z = rng.uniform(0.55, 0.9) * cam.K[0, 0] / 420
+        c = np.array([rng.uniform(-0.1, 0.1) * z, rng.uniform(-0.08, 0.08) * z, z])
+        t = c - R @ spec.center_b3
+        grey = cv2.cvtColor(ren.render([(R, t)], rng, noise_sigma=0.0), cv2.COLOR_RGB2GRAY)
+        cc, ci, _, _ = spec.detector().detectBoard(grey)
+        assert ci is not None and len(ci) >= 10
+        errs.append(cc.reshape(-1, 2) - cam.project(spec.corners_b3[ci.ravel()] @ R.T + t))
+    err = np.concatenate(errs)
+    assert np.sqrt(np.mean(np.sum(err ** 2, 1))) < 0.12
+    assert np.linalg.norm(err.mean(0)) < 0.03  # no systematic offset (e.g. a half-texel shift)
+
+
+def test_session_plan_ends_with_the_floor_board_at_the_world_origin():
+    rig = make_ring_rig(3, radius=2.5)
+    spec = load_board_spec("charuco-a1")
+    traj = plan_session(rig, spec, seed=1, duration_s=30.0, n_closeups=2)
+    assert traj.kinds[-1] == "floor" and any(k == "shared" for k in traj.kinds)
+    assert abs(traj.duration - 30.0) < 1e-6
+    R, t = traj.pose([traj.hold_t0[-1] + 0.5])
+    assert np.allclose(R[0], R_WORLD_FLOOR_BOARD) and np.allclose(t[0], 0)
+    # printed face up: board -z is world +Z
+    assert np.allclose(-R[0][:, 2], [0, 0, 1])
+    # moves are smooth: no jumps between consecutive 10 ms samples
+    ts = np.arange(0, traj.duration, 0.01)
+    _, tt = traj.pose(ts)
+    assert np.linalg.norm(np.diff(tt, axis=0), axis=1).max() < 0.05
