@@ -3,8 +3,9 @@
 - ``body_centres``: per person and frame, the 3D point closest to the rays through all its
   landmarks in all views (the paper's initialisation).
 - ``triangulate``: every landmark by weighted ray intersection (a 3x3 solve each), each
-  ray weighted by visibility / (sigma in metres at the body's depth)^2, refined by two
-  reweighting rounds on the reprojection error (Geman-McClure) so outliers lose their say.
+  ray weighted by visibility / (sigma in metres at the body's depth)^2, refined by
+  reweighting rounds on the reprojection error (Geman-McClure, shrinking scale) so
+  outliers lose their say.
 - ``rigid_from_landmarks``: global rotation and translation per person and frame by a
   weighted Procrustes (Kabsch) fit of the rest-pose torso landmarks to their triangulated
   positions: orientation comes straight from the landmark set, no yaw search needed.
@@ -50,12 +51,14 @@ def body_centres(rig: Rig, dirs: np.ndarray, w: np.ndarray) -> tuple[np.ndarray,
 
 
 def triangulate(rig: Rig, dirs: np.ndarray, xy: np.ndarray, sigma: np.ndarray, w: np.ndarray,
-                centres_pt3: np.ndarray, gamma: float = 3.0, rounds: int = 2) -> tuple[np.ndarray, np.ndarray]:
+                centres_pt3: np.ndarray, gammas: tuple[float, ...] = (30.0, 10.0, 3.0)) -> tuple[np.ndarray, np.ndarray]:
     """Robust weighted triangulation of every landmark.
 
     dirs (C, P, T, L, 3), xy/sigma (C, P, T, L, 2), w (C, P, T, L) visibility weights,
-    centres (P, T, 3) body centres (for each view's metres-per-pixel). Returns X (P, T, L, 3)
-    and an information weight (P, T, L) (1 / m^2 along the worst direction; 0 = unknown).
+    centres (P, T, 3) body centres (for each view's metres-per-pixel). Reweighting rounds
+    use Geman-McClure scales ``gammas`` (in sigmas), shrinking so that a ray far off at the
+    start does not take the others with it. Returns X (P, T, L, 3) and an information weight
+    (P, T, L) (1 / m^2 along the worst direction; 0 = unknown).
     """
     C = len(rig)
     cc = rig.centers()
@@ -66,10 +69,11 @@ def triangulate(rig: Rig, dirs: np.ndarray, xy: np.ndarray, sigma: np.ndarray, w
     base = w / np.maximum(sig_m, 1e-6) ** 2
     wr = base.copy()
     X = None
-    for r in range(rounds + 1):
+    for r in range(len(gammas) + 1):
         X, A = _solve_rays(cc, dirs, wr, axis=0)
-        if r == rounds:
+        if r == len(gammas):
             break
+        gamma = gammas[r]
         proj = np.stack([cam.project(X) for cam in rig])  # (C, P, T, L, 2)
         s2 = (((proj - xy) / np.maximum(sigma, 1e-6)) ** 2).sum(-1)
         s2 = np.where(np.isfinite(s2), s2, 1e12)
