@@ -19,6 +19,7 @@ frame of the chunk it enters in.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -203,6 +204,7 @@ class Sam2Backend:
         self.chunk, self.device = int(chunk), device
         self.prompts = load_prompts(Path(prompts)) if prompts is not None else None
         self._predictor = predictor
+        self._built = predictor is None  # ours to wrap in torch.inference_mode
         if predictor is None:
             if checkpoint is None or config is None:
                 raise UserError("--backend sam2 needs --sam2-checkpoint PATH and --sam2-config NAME",
@@ -263,13 +265,14 @@ class Sam2Backend:
             for t, img in rd.frames():
                 yield int(np.argmin(np.abs(times - t))), img
 
-        ctx = _inference_context(self.device)
+        ctx = _inference_context() if self._built else contextlib.nullcontext()
         with ctx, tempfile.TemporaryDirectory(prefix="mamma-sam2-") as tmp:
             stats = run_chunked(self.predictor, frames(), len(times), prompts, self.chunk, builder, Path(tmp))
         raw_ids = sorted({k for _, k in builder.items})
         mt = _keep_ids(builder)
         summ = track_summary(mt)
         summ.update({"chunks": stats.chunks, "max_frames_in_state": stats.max_frames_in_state,
+                     "chunk_starts": stats.starts,
                      "prompts": len(prompts), "prompt_ids": raw_ids})
         return mt, summ
 
@@ -285,11 +288,7 @@ def _keep_ids(builder: MaskTrackBuilder) -> MaskTracks:
     return mt
 
 
-def _inference_context(device: str):
-    import contextlib
+def _inference_context():
+    import torch
 
-    try:
-        import torch
-    except ImportError:
-        return contextlib.nullcontext()
     return torch.inference_mode()

@@ -39,8 +39,7 @@ def plot_matching(ident: Identities, path: str | Path) -> Path:
     order, A = affinity_table(ident)
     N = len(order)
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [3, 2]})
-    cmap = plt.get_cmap("viridis").copy()
-    cmap.set_bad("#dddddd")
+    cmap = plt.get_cmap("viridis").with_extremes(bad="#dddddd")
     im = ax.imshow(np.ma.masked_invalid(A), vmin=0, vmax=1, cmap=cmap, interpolation="nearest")
     fig.colorbar(im, ax=ax, fraction=0.046, label="affinity exp(-D / lambda)")
     # person blocks
