@@ -35,7 +35,7 @@ class Settings:
     model: str = "radtan"
     max_fps: float = 10.0  # detection rate (frames per second of video)
     max_views: int = 40  # views per camera for intrinsics
-    still_px: float = 0.6
+    still_px: float = 0.3
     sync_tol_s: float = 0.001  # with a timing model: moving frames this close in time are one pose
     offset_margin_s: float = 0.15  # still runs are shrunk by this on both ends when offsets are estimated
     max_offset_s: float | None = None  # bound on |clock offset| between cameras (None: any)
@@ -102,9 +102,11 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
         if n not in dets:
             dets[n] = _cached_detections(videos[n], spec, n, st, cache_dir, progress)
     for n in names:
-        d = dets[n]
-        if len(d.usable(spec)) == 0:
-            raise diagnose_board(videos[n], spec, n)
+        if len(dets[n].usable(spec)) < MIN_VIEWS:
+            # few or no views: most often a board that differs from its spec
+            err = diagnose_board(videos[n], spec, n)
+            if err is not None:
+                raise err
     t_detect = time.perf_counter() - t_start
     # 2. intrinsics
     intr: dict[str, IntrinsicResult] = {}

@@ -183,7 +183,7 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
                  closeup_hold_s: tuple[float, float] = (0.3, 0.7), floor_hold_s: float = 2.5,
                  speed_mps: float = 0.8, tremor_m: float = 0.0003, volume_radius: float | None = None,
                  height_range: tuple[float, float] = (0.6, 1.8), closeup_fill: tuple[float, float] = (0.35, 0.8),
-                 max_tilt_deg: float = 40.0, min_shared_cameras: int = 2) -> BoardTrajectory:
+                 max_tilt_deg: float = 40.0, max_view_angle_deg: float = 55.0) -> BoardTrajectory:
     """Plan a board session for a rig (world Z up). See the module docstring."""
     rng = np.random.default_rng(seed)
     cams = list(rig)
@@ -195,21 +195,22 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
     az = np.arctan2(*(rig.centers() - centre)[:, [1, 0]].T)
     order = list(np.argsort(az))
 
-    def shared_hold():
+    def shared_hold(k: int):
+        """A hold facing the k-th pair of neighbouring cameras (by azimuth), seen well (not too
+        obliquely) by both, or None."""
+        i = order[k % len(order)]
+        pair = [cams[i]] if len(cams) == 1 else [cams[i], cams[order[(k + 1) % len(order)]]]
         for _ in range(200):
             p = centre.copy()
             rr, aa = r_vol * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
             p[:2] += rr * np.array([np.cos(aa), np.sin(aa)])
             p[2] = rng.uniform(lo, hi)
-            i = rng.integers(len(cams))
-            k = order.index(i)
-            pair = [cams[i]] if len(cams) == 1 else [cams[i], cams[order[(k + 1) % len(order)]]]
             dirs = [(c.center - p) / np.linalg.norm(c.center - p) for c in pair]
             n = np.mean(dirs, 0)
             R = _tilt(_facing_rotation(n, roll=rng.uniform(-0.4, 0.4)), rng, 0.5 * max_tilt_deg)
             t = p - R @ spec.center_b3
-            seen = sum(corner_visibility(c, R, t, spec) > 0.7 for c in cams)
-            if seen >= min(min_shared_cameras, len(cams)):
+            ok = [corner_visibility(c, R, t, spec, max_angle_deg=max_view_angle_deg) > 0.8 for c in pair]
+            if all(ok):
                 return R, p
         return None
 
@@ -246,7 +247,8 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
 
     close = {c.name: closeup_holds(c, n_closeups) if closeups else [] for c in cams}
     floor = (R_WORLD_FLOOR_BOARD, R_WORLD_FLOOR_BOARD @ spec.center_b3)  # board origin at the world origin
-    pool = [h for h in (shared_hold() for _ in range(max(8, int(duration_s)))) if h is not None]
+    # round-robin over neighbouring pairs, so that every pair gets its share
+    pool = [h for h in (shared_hold(k) for k in range(max(8, int(duration_s)))) if h is not None]
     hold_len = rng.uniform(*hold_s, len(pool))
     close_len = {c.name: rng.uniform(*closeup_hold_s, len(close[c.name])) for c in cams}
 
