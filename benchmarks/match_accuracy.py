@@ -1,0 +1,165 @@
+"""Identity accuracy of `mamma-kit match` over camera counts, on rendered synthetic captures.
+
+For each capture (crowd-6, iphone-outdoor-duo; rendered by `mamma-kit synth` if the folder does not
+hold one yet) and each camera count (2/3/4/8, cameras spread evenly around the ring), landmarks
+are the renderer's ground truth with noise of 1.2 % of the box height and 5 % outliers
+(`mamma-kit landmarks --source gt`), over several noise seeds. Frames are paired by the true
+clocks (gt/timing.toml) and the calibration is gt/calibration.toml.
+
+Printed per case: identity accuracy (fraction of tracks given the right person), persons found,
+time; and the same landmarks through a baseline in the style of the official code (per-pair mean
+symmetric epipolar distance in pixels, affinity exp(-D/50), 0 above 80 px, Hungarian, keep
+> 0.4, then union-find over the kept matches), on the same pair distances. With --builtin the
+chain runs from the builtin masks instead (track -> landmarks re-mapped to those tracks ->
+match), which adds the tracker's broken and switched tracks.
+
+    nice -n 10 python benchmarks/match_accuracy.py --root /work/data/track_match --seeds 3 [--builtin]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+CASES = [("crowd-6", "crowd6_s025_f60", 60, 0.25), ("iphone-outdoor-duo", "duo_s020_f60", 60, 0.2)]
+
+
+def ensure_capture(root: Path, recipe: str, folder: str, frames: int, scale: float) -> Path:
+    ws = root / folder
+    if not (ws / "capture.toml").is_file():
+        from mamma_kit.synth.capture import synthesize
+
+        print(f"rendering {recipe} into {ws} (frames {frames}, scale {scale}); this takes a while")
+        synthesize(recipe, ws, frames=frames, scale=scale, board=False)
+    return ws
+
+
+def spread(cams: list[str], n: int) -> list[str]:
+    idx = np.unique(np.round(np.linspace(0, len(cams), n, endpoint=False)).astype(int))
+    return [cams[i] for i in idx]
+
+
+def union_find_baseline(views, sub) -> dict:
+    """Official-style grouping on the same pair distances (px, uncapped): see module doc."""
+    from scipy.optimize import linear_sum_assignment
+
+    from mamma_kit.core.identities import Identities
+    from mamma_kit.matching.pairs import pair_distances
+
+    parent = {}
+
+    def find(x):
+        parent.setdefault(x, x)
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a in range(len(views)):
+        for b in range(a + 1, len(views)):
+            r = pair_distances(views[a], views[b], cap=np.inf)
+            D = np.nan_to_num(r.distance_px, nan=np.inf)
+            A = np.where((D <= 80) & (r.shared_landmarks >= 5), np.exp(-D / 50), 0.0)
+            ri, ci = linear_sum_assignment(1 - A)
+            for i, j in zip(ri, ci):
+                if A[i, j] > 0.4:
+                    x, y = (a, int(views[a].track_ids[i])), (b, int(views[b].track_ids[j]))
+                    parent[find(x)] = find(y)
+    assign: dict[str, dict[int, int]] = {v.name: {} for v in views}
+    roots: dict = {}
+    for vi, v in enumerate(views):
+        for k, tid in enumerate(v.track_ids):
+            if v.valid_tk[:, k].any():
+                r = find((vi, int(tid)))
+                assign[v.name][int(tid)] = roots.setdefault(r, len(roots))
+    return Identities([v.name for v in views], assign)
+
+
+def run_case(ws_path: Path, cams: list[str], seed: int, builtin: bool) -> dict:
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.core.tracks import LandmarkTracks
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.evaluation.identities import score, track_gt_persons
+    from mamma_kit.matching.match import match_views
+    from mamma_kit.matching.pairs import ViewTracks
+
+    ws = Workspace(ws_path)
+    rig, _ = read_calibration(ws.gt_dir / "calibration.toml")
+    clocks, _ = read_timing(ws.gt_dir / "timing.toml")
+    lts = {c: LandmarkTracks.load(ws.landmarks_file(c)) for c in cams}
+    views = [ViewTracks.from_landmarks(lts[c], rig[c], clocks[c].to_ref(lts[c].frame_times)) for c in cams]
+    t0 = time.perf_counter()
+    ident = match_views(views)
+    secs = time.perf_counter() - t0
+    truth = track_gt_persons(ws, cams)
+    ours = score(ident, truth)
+    base = score(union_find_baseline(views, cams), truth)
+    return {"accuracy": ours["accuracy"], "persons": ours["persons"], "gt_persons": ours["gt_persons"],
+            "tracks": ours["tracks"], "seconds": secs, "baseline_accuracy": base["accuracy"],
+            "baseline_persons": base["persons"], "wrong": ours["wrong"][:3]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--root", type=Path, default=Path("bench_data"), help="folder of the rendered captures")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--counts", default="2,3,4,8")
+    ap.add_argument("--builtin", action="store_true", help="landmarks on builtin mask tracks instead of gt ids")
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    args = ap.parse_args()
+    from mamma_kit.cli.app import main as cli
+    from mamma_kit.core import log
+
+    log.set_quiet(True)
+
+    def run(*a):
+        try:
+            cli([str(x) for x in a])
+        except SystemExit as e:
+            if e.code not in (0, None):
+                raise RuntimeError(f"mamma-kit {' '.join(map(str, a))} failed ({e.code})")
+
+    rows = []
+    print(f"{'capture':20s} {'cams':>4s} {'seed':>4s} {'tracks':>6s} {'persons':>7s} {'accuracy':>8s} "
+          f"{'union-find':>10s} {'match s':>7s}")
+    for recipe, folder, frames, scale in CASES:
+        ws = ensure_capture(args.root, recipe, folder, frames, scale)
+        from mamma_kit.core.workspace import Workspace
+
+        allcams = Workspace(ws).load_capture().camera_names
+        if args.builtin:
+            run("track", ws, "--backend", "builtin", "--quiet")
+        elif (ws / "masks").is_dir():
+            import shutil
+
+            shutil.rmtree(ws / "masks")  # gt person ids as track ids
+        for seed in range(args.seeds):
+            run("landmarks", ws, "--source", "gt", "--noise", "1.2%", "--outliers", "0.05", "--seed", seed,
+                "--force", "--quiet")
+            for n in [int(x) for x in args.counts.split(",")]:
+                if n > len(allcams):
+                    continue
+                cams = spread(allcams, n)
+                r = run_case(ws, cams, seed, args.builtin)
+                rows.append({"capture": recipe, "cameras": n, "seed": seed, **r})
+                print(f"{recipe:20s} {n:4d} {seed:4d} {r['tracks']:6d} {r['persons']:3d}/{r['gt_persons']:<3d} "
+                      f"{100 * r['accuracy']:7.1f}% {100 * r['baseline_accuracy']:9.1f}% {r['seconds']:7.2f}")
+    print("\nsummary (mean over seeds): identity accuracy, ours vs union-find baseline")
+    for recipe, *_ in CASES:
+        for n in [int(x) for x in args.counts.split(",")]:
+            sel = [r for r in rows if r["capture"] == recipe and r["cameras"] == n]
+            if sel:
+                print(f"  {recipe:20s} {n} cameras: {100 * np.mean([r['accuracy'] for r in sel]):6.1f} %   "
+                      f"baseline {100 * np.mean([r['baseline_accuracy'] for r in sel]):6.1f} %   "
+                      f"({len(sel)} runs, {'builtin masks' if args.builtin else 'gt tracks'})")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1, default=str))
+
+
+if __name__ == "__main__":
+    main()
