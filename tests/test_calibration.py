@@ -265,16 +265,24 @@ def test_similarity_alignment_undoes_any_similarity(rv, t, s):
 
 
 @settings(max_examples=30, deadline=None)
-@given(rv=st.lists(st.floats(-3, 3), min_size=3, max_size=3), t=st.lists(st.floats(-3, 3), min_size=3, max_size=3))
-def test_floor_board_defines_z_up_and_the_origin(rv, t):
-    """Whatever frame the rig is solved in, the floor board's pose maps to the world the
-    synthetic generator uses: board origin at (0, 0, 0), printed face up."""
-    from mamma_kit.calibration.world import world_from_board
+@given(rv=st.lists(st.floats(-3, 3), min_size=3, max_size=3), t=st.lists(st.floats(-3, 3), min_size=3, max_size=3),
+       yaw=st.lists(st.floats(-3, 3), min_size=2, max_size=2))
+def test_floor_boards_define_z_up_and_the_origin(rv, t, yaw):
+    """Whatever frame the rig is solved in, the floor boards map to the world the synthetic
+    generator uses: origin board's corner at (0, 0, 0), printed faces up, floor at z = 0."""
+    from mamma_kit.calibration.world import world_from_floor
     from mamma_kit.synth.board import R_WORLD_FLOOR_BOARD
 
+    spec = load_board_spec("charuco-a1")
     R_frame, t_frame = rodrigues(np.array(rv)), np.array(t)  # world -> arbitrary rig frame
-    R_e = R_frame @ R_WORLD_FLOOR_BOARD  # floor board -> rig frame
-    t_e = t_frame
-    R_w, t_w = world_from_board(R_e, t_e)
-    assert np.allclose(R_w @ R_frame, np.eye(3), atol=1e-9)
-    assert np.allclose(R_w @ t_frame + t_w, 0, atol=1e-9)
+    # the origin board, and two more flat on the floor elsewhere, turned about Z
+    poses_w = [(R_WORLD_FLOOR_BOARD, np.zeros(3))]
+    for k, (a, pos) in enumerate(zip(yaw, ([1.2, 0.3, 0.0], [-0.8, -1.1, 0.0]))):
+        poses_w.append((rodrigues(np.array([0, 0, a])) @ R_WORLD_FLOOR_BOARD, np.array(pos)))
+    ev_R = np.stack([R_frame @ R for R, _ in poses_w])
+    ev_t = np.stack([R_frame @ p + t_frame for _, p in poses_w])
+    for boards in ([0], [0, 1, 2]):
+        R_w, t_w, info = world_from_floor(ev_R, ev_t, 0, boards, spec.corners_b3)
+        assert np.allclose(R_w @ R_frame, np.eye(3), atol=1e-9)
+        assert np.allclose(R_w @ t_frame + t_w, 0, atol=1e-9)
+        assert info["floor_boards"] == len(boards) and info["floor_flatness_mm"] < 1e-6

@@ -21,7 +21,7 @@ from mamma_kit.calibration.bundle import (BundleResult, bundle_adjust, check_con
                                           init_extrinsics, pair_graph)
 from mamma_kit.calibration.detect import MIN_CORNERS, Detections, detect_video, diagnose_board
 from mamma_kit.calibration.intrinsics import IntrinsicResult, calibrate_camera, cross_validate, tilt_of
-from mamma_kit.calibration.world import find_floor, up_guess, world_from_board, world_from_camera
+from mamma_kit.calibration.world import find_floor, up_guess, world_from_camera, world_from_floor
 from mamma_kit.core import log
 from mamma_kit.core.camera import Camera, Rig, rotvec
 from mamma_kit.core.clock import ClockModel
@@ -201,14 +201,15 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     held = np.array([ev.kind == "hold" and len(ev.obs) > 1 for ev in events])
     centres = np.einsum("eij,j->ei", ba.event_R, spec.center_b3) + ba.event_t
     up, up_src = up_guess(rig_ref, ba.event_R, held)
-    floor_k = find_floor(ba.event_R, ba.event_t, centres, still, up) if st.floor else None
+    floor_k, floor_all = find_floor(ba.event_R, ba.event_t, centres, still, up, rig_ref.centers()) \
+        if st.floor else (None, [])
     world: dict = {}
     if floor_k is not None:
-        R_w, t_w = world_from_board(ba.event_R[floor_k], ba.event_t[floor_k])
+        R_w, t_w, finfo = world_from_floor(ba.event_R, ba.event_t, floor_k, floor_all, spec.corners_b3)
         ev = events[floor_k]
         world = {"source": "floor", "floor_cameras": ev.cameras, "floor_time_s": ev.t_ref,
-                 "floor_duration_s": ev.duration,
-                 "up_vs_guess_deg": float(np.degrees(np.arccos(np.clip(-ba.event_R[floor_k][:, 2] @ up, -1, 1))))}
+                 "floor_duration_s": ev.duration, **finfo,
+                 "up_vs_guess_deg": float(np.degrees(np.arccos(np.clip(R_w[2] @ up, -1, 1))))}
     else:
         R_w, t_w = world_from_camera(rig_ref, up, names[0])
         msg = (f"no board lying on the floor was found: the world frame is camera {names[0]}'s position with Z up "

@@ -4,7 +4,8 @@ A session is what a person does with a printed board in front of a rig: carry it
 the capture volume and hold it still for about a second at each place, turned towards a
 pair of neighbouring cameras (shared views for extrinsics); bring it close to each camera
 and hold it at several places and tilts (close-ups for intrinsics); finally lay it flat on
-the floor at the world origin (the world frame: Z up, floor z = 0).
+the floor: at a couple of places, and last at the world origin (the world frame: Z up, floor
+z = 0; the boards away from the origin pin the floor plane over a wide baseline).
 
 Rendering is by inverse mapping through the real lens model: for each output pixel (and
 ``supersample`` x ``supersample`` sub-pixel samples) the ray is found by undistorting the
@@ -66,7 +67,8 @@ class BoardTrajectory:
 
     ``R_wb_k33``/``c_wk3`` are the keyframe rotations and board-centre positions; keyframe k
     is held over [hold_t0[k], hold_t1[k]] and the board moves to k+1 until hold_t0[k+1].
-    ``kinds[k]`` says what the hold is for: 'shared', 'closeup:<cam>' or 'floor'. A small
+    ``kinds[k]`` says what the hold is for: 'shared', 'closeup:<cam>', 'floor' (the board at
+    the world origin) or 'floor-extra' (flat on the floor elsewhere). A small
     smooth tremor (``tremor_m`` metres, about tremor_m / 0.3 m radians) rides on top, as
     with a hand-held board, except on the floor.
     """
@@ -107,7 +109,7 @@ class BoardTrajectory:
         if self.tremor_m > 0:
             fr, ph = self._tremor
             wave = np.sin(2 * np.pi * fr[None] * t[:, None, None] + ph[None]).sum(-1) / 2.0  # (N, 6)
-            on_floor = (np.array(self.kinds) == "floor")[k] & ~moving
+            on_floor = np.char.startswith(np.array(self.kinds), "floor")[k] & ~moving
             wave[on_floor] = 0.0
             c = c + self.tremor_m * wave[:, :3]
             R = R @ Rotation.from_rotvec(self.tremor_m / 0.3 * wave[:, 3:]).as_matrix()
@@ -180,7 +182,7 @@ def volume_center(rig: Rig) -> np.ndarray:
 
 def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float = 60.0, closeups: bool = True,
                  n_closeups: int = 8, floor_pose: bool = True, hold_s: tuple[float, float] = (0.8, 1.6),
-                 closeup_hold_s: tuple[float, float] = (0.3, 0.7), floor_hold_s: float = 2.5,
+                 closeup_hold_s: tuple[float, float] = (0.3, 0.7), floor_hold_s: float = 2.5, floor_places: int = 3,
                  speed_mps: float = 0.8, tremor_m: float = 0.0003, volume_radius: float | None = None,
                  height_range: tuple[float, float] = (0.6, 1.8), closeup_fill: tuple[float, float] = (0.35, 0.8),
                  max_tilt_deg: float = 40.0, max_view_angle_deg: float = 55.0) -> BoardTrajectory:
@@ -245,8 +247,26 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
         ang = np.linalg.norm(Rotation.from_matrix(R0.T @ R1).as_rotvec())
         return max(0.5, np.linalg.norm(p1 - p0) / speed_mps * 1.3, ang / 1.5)
 
+    def floor_holds(n: int):
+        """Boards flat on the floor away from the origin, seen by at least two cameras: with
+        the origin board they pin the floor plane over a wide baseline."""
+        out = []
+        c0 = np.array([centre[0], centre[1], 0.0])
+        for _ in range(100 * n):
+            if len(out) >= n:
+                break
+            a = rng.uniform(0, 2 * np.pi)
+            rr = rng.uniform(0.6, 1.2) * r_vol
+            R = R_WORLD_FLOOR_BOARD @ Rotation.from_rotvec([0, 0, rng.uniform(-np.pi, np.pi)]).as_matrix()
+            p = c0 + rr * np.array([np.cos(a), np.sin(a), 0.0])
+            t = p - R @ spec.center_b3
+            if sum(corner_visibility(c, R, t, spec, max_angle_deg=80) > 0.8 for c in cams) >= min(2, len(cams)):
+                out.append((R, p))
+        return out
+
     close = {c.name: closeup_holds(c, n_closeups) if closeups else [] for c in cams}
     floor = (R_WORLD_FLOOR_BOARD, R_WORLD_FLOOR_BOARD @ spec.center_b3)  # board origin at the world origin
+    extra_floor = floor_holds(floor_places - 1) if floor_pose else []
     # round-robin over neighbouring pairs, so that every pair gets its share
     pool = [h for h in (shared_hold(k) for k in range(max(8, int(duration_s)))) if h is not None]
     hold_len = rng.uniform(*hold_s, len(pool))
@@ -260,6 +280,7 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
             seq += [(R, p, f"closeup:{c.name}", close_len[c.name][j]) for j, (R, p) in enumerate(close[c.name])]
             seq += [(pool[j][0], pool[j][1], "shared", hold_len[j]) for j in batches[ci]]
         if floor_pose:
+            seq += [(R, p, "floor-extra", floor_hold_s) for R, p in extra_floor]
             seq.append((floor[0], floor[1], "floor", floor_hold_s))
         moves = [move_time(seq[k - 1][1], seq[k - 1][0], seq[k][1], seq[k][0]) for k in range(1, len(seq))]
         return seq, np.array(moves)
@@ -512,7 +533,9 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
                    The videos carry camera-clock timestamps; the board is rendered at t_ref.
       frame_times  per camera camera-clock frame timestamps (e.g. VFR with jitter); default
                    k / fps for k in range(round(duration_s * fps))
-      floor_pose   end with the board flat on the floor at the world origin (pins the world frame)
+      floor_pose   end with the board flat on the floor (pins the world frame): first at
+                   ``floor_places - 1`` places around the middle (plan_kw floor_places, default 3),
+                   last with its origin at the world origin, axes on the world's
       closeups     per camera ``n_closeups`` close, tilted holds covering the image (intrinsics)
       noise_sigma  sensor noise (8-bit levels); crf is the H.264 quality
       exposure_s, motion_blur   exposure time; with motion_blur the board is averaged over it
