@@ -6,6 +6,8 @@ the track id is the gt person id (landmarks made from ground truth without masks
 ids of identities.json are then mapped one-to-one to gt persons by majority (a Hungarian
 assignment maximising the number of agreeing tracks), so a person split into two groups or two
 people merged into one both count as errors. A track without a person id counts as wrong.
+``frame_accuracy`` weighs each track by its frames with landmarks (a 3-frame fragment counts less
+than a whole-clip track).
 """
 
 from __future__ import annotations
@@ -54,9 +56,13 @@ def score(ident: Identities, truth: dict[tuple[str, int], int]) -> dict:
     correct = [k for k in tracks if mapping.get(ident.person_of(*k)) == truth[k]]
     wrong = [{"camera": c, "track": t, "gt_person": truth[(c, t)], "person": ident.person_of(c, t),
               "person_maps_to": mapping.get(ident.person_of(c, t))} for c, t in tracks if (c, t) not in correct]
+    w = {k: max(int(ident.track_frames.get(k, 0)), 0) for k in tracks}
+    total_w = sum(w.values())
+    frame_acc = round(sum(w[k] for k in correct) / total_w, 4) if total_w else None
     split = sum(1 for g in gts if sum(1 for p in pids if M[pids.index(p), gts.index(g)] > 0) > 1)
     merged = sum(1 for p in pids if np.count_nonzero(M[pids.index(p)]) > 1)
-    return {"accuracy": round(len(correct) / len(tracks), 4), "tracks": len(tracks), "correct": len(correct),
+    return {"accuracy": round(len(correct) / len(tracks), 4), "frame_accuracy": frame_acc,
+            "tracks": len(tracks), "correct": len(correct),
             "persons": len(pids), "gt_persons": len(gts), "persons_split": split, "persons_merged": merged,
             "person_to_gt": {str(k): v for k, v in mapping.items()}, "wrong": wrong[:50]}
 

@@ -182,8 +182,21 @@ def match_workspace(ws: Workspace, cameras: list[str] | None = None, calibration
     if timing is None and ws.timing.is_file():
         timing = ws.timing
     times, how = camera_times(ws, cameras, lts, Path(timing) if timing else None)
-    views = [ViewTracks.from_landmarks(lts[c], rig[c], times[c], (settings or MatchSettings()).vis_threshold)
-             for c in cameras]
+    views = [ViewTracks.from_landmarks(lts[c], _camera_for(rig[c], lts[c].image_size), times[c],
+                                       (settings or MatchSettings()).vis_threshold) for c in cameras]
     ident = match_views(views, settings)
     ident.diagnostics["time_pairing"] = how
     return ident
+
+
+def _camera_for(cam, size_wh) -> "object":
+    """The calibrated camera at the landmarks' image size (a resized video keeps its calibration
+    up to scale); a different aspect ratio is a user error."""
+    w, h = int(size_wh[0]), int(size_wh[1])
+    if (w, h) == tuple(cam.size) or w <= 0 or h <= 0:
+        return cam
+    sx, sy = w / cam.size[0], h / cam.size[1]
+    if abs(sx - sy) > 0.01 * max(sx, sy):
+        raise UserError(f"camera {cam.name} is calibrated at {cam.size[0]}x{cam.size[1]} but its landmarks are "
+                        f"{w}x{h} (another aspect ratio)", "calibrate with videos of the same size and orientation")
+    return cam.scaled(sx, sy)
