@@ -99,7 +99,8 @@ def run_case(ws_path: Path, cams: list[str], seed: int, builtin: bool) -> dict:
     truth = track_gt_persons(ws, cams)
     ours = score(ident, truth)
     base = score(union_find_baseline(views, cams), truth)
-    return {"accuracy": ours["accuracy"], "frame_accuracy": ours["frame_accuracy"], "persons": ours["persons"], "gt_persons": ours["gt_persons"],
+    return {"accuracy": ours["accuracy"], "frame_accuracy": ours["frame_accuracy"], "persons": ours["persons"],
+            "gt_persons": ours["gt_persons"],
             "tracks": ours["tracks"], "seconds": secs, "baseline_accuracy": base["accuracy"],
             "baseline_persons": base["persons"], "wrong": ours["wrong"][:3]}
 

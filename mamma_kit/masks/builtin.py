@@ -203,6 +203,24 @@ def _centroid(mask: np.ndarray) -> np.ndarray:
     return np.array([xs.mean(), ys.mean()]) if len(xs) else np.zeros(2)
 
 
+def _box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    ys, xs = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
+    return xs[0], ys[0], xs[-1] + 1, ys[-1] + 1
+
+
+def _stacked(c: np.ndarray, m: np.ndarray, h: int) -> bool:
+    """c lies just above or below m, overlapping it horizontally, and together they are taller
+    than wide (one person in two pieces, not two people side by side)."""
+    if not m.any():
+        return False
+    a, b = _box(c), _box(m)
+    overlap_x = min(a[2], b[2]) - max(a[0], b[0])
+    gap_y = max(a[1], b[1]) - min(a[3], b[3])
+    width = max(a[2], b[2]) - min(a[0], b[0])
+    height = max(a[3], b[3]) - min(a[1], b[1])
+    return overlap_x >= 0.5 * min(a[2] - a[0], b[2] - b[0]) and gap_y <= 0.04 * h and height >= 1.2 * width
+
+
 def split_component(comp: np.ndarray, preds: list[np.ndarray], hists: list[np.ndarray], cidx: np.ndarray,
                     colour_weight: float) -> tuple[list[np.ndarray], list[float]]:
     """Share a component's pixels among the predicted masks of the tracks that claim it.
@@ -250,6 +268,7 @@ class Tracker:
 
     def step(self, t: int, fg: np.ndarray, cidx: np.ndarray) -> dict[int, tuple[np.ndarray, float]]:
         s = self.s
+        self.next_id_at_frame_start = self.next_id
         comps = components(fg, max(4, int(s.min_area_frac * self.area_px)), int(round(s.link_frac * self.h)))
         live = {k: tr for k, tr in self.tracks.items() if t - tr.last_seen <= s.max_lost}
         self.tracks = live
@@ -285,6 +304,16 @@ class Tracker:
                         continue  # occluded: coasts on its prediction
                     prev = out.get(k)
                     out[k] = ((prev[0] | m) if prev else m, sc)
+        # fragments of a person already found this frame (clothes the colour of the background cut
+        # people in two): stacked above or below its mask -> part of it, not a new person
+        rest = []
+        for c in sorted(unclaimed, key=lambda c: -int(c.sum())):
+            k = next((k for k, (m, _) in out.items() if _stacked(c, m, self.h)), None)
+            if k is None:
+                rest.append(c)
+            else:
+                out[k] = (out[k][0] | c, out[k][1])
+        unclaimed = rest
         # re-identify lost tracks, else start new ones
         lost = [k for k, tr in live.items() if k not in out and t - tr.last_seen > 0]
         big = [c for c in unclaimed if c.sum() >= s.new_track_area_frac * self.area_px]
@@ -310,6 +339,11 @@ class Tracker:
                     taken.add(i)
             big = [c for i, c in enumerate(big) if i not in taken]
         for c in big:
+            k_new = next((k for k in out if k >= self.next_id_at_frame_start and _stacked(c, out[k][0], self.h)),
+                         None)  # a second piece of a person who appeared this frame
+            if k_new is not None:
+                out[k_new] = (out[k_new][0] | c, 1.0)
+                continue
             k = self.next_id
             self.next_id += 1
             self.tracks[k] = Track(k, c, _centroid(c), last_seen=t, hist=histogram(cidx, c), area=float(c.sum()))

@@ -152,7 +152,8 @@ def pair_distances(a: ViewTracks, b: ViewTracks, cap: float = 0.25, max_frames: 
         rel = np.where(both, np.minimum(rel, cap), 0.0)
         n_fij = both.sum(-1)
         dist_sum += rel.sum((0, 3))
-        px_sum += np.where(both, np.minimum(px, cap * (ha[:, :, None, None] + hb[:, None, :, None]) / 2), 0.0).sum((0, 3))
+        cap_px = cap * (ha[:, :, None, None] + hb[:, None, :, None]) / 2
+        px_sum += np.where(both, np.minimum(px, cap_px), 0.0).sum((0, 3))
         count += n_fij.sum(0)
         frames += (n_fij >= min_per_frame).sum(0)
     with np.errstate(invalid="ignore", divide="ignore"):
