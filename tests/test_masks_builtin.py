@@ -175,3 +175,26 @@ def test_track_cli_user_errors(tracked, cli, tmp_path):
     assert r.code == 2 and "--prompts is for --backend sam2" in r.err
     r = cli("track", str(tmp_path / "missing"))
     assert r.code == 2 and "workspace not found" in r.err
+
+
+def test_eval_masks_and_gt_backend(tracked, cli, tmp_path):
+    """`eval` scores the builtin masks as this file does; `track --backend gt` gives IoU 1."""
+    import json
+    import shutil
+
+    src, _, truth, mt = tracked
+    root = tmp_path / "ws"
+    shutil.copytree(src, root)
+    masks = {(t, p): truth[t, p] for t in range(T) for p in range(2) if truth[t, p].any()}
+    MaskTracks.from_masks("cam0", (W, H), mt.frame_times, np.arange(2), masks).save(root / "gt" / "masks" / "cam0.npz")
+    r = cli("eval", root, "--only", "masks", "--json")
+    assert r.code == 0, r
+    m = json.loads(r.out)["masks"]
+    _, iou = _per_person(mt, truth)
+    assert abs(m["mean_iou"] - iou.mean()) < 0.02, (m["mean_iou"], iou.mean())
+    assert m["mean_iou_separated"] >= 0.85 and m["instances_touching"] > 0
+    r = cli("track", root, "--backend", "gt", "--json")
+    assert r.code == 0, r
+    r = cli("eval", root, "--only", "masks", "--json")
+    m = json.loads(r.out)["masks"]
+    assert m["mean_iou"] == 1.0 and m["id_switches"] == 0
