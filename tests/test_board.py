@@ -124,9 +124,9 @@ def test_rendered_corners_are_where_the_lens_model_projects_them(fisheye):
 def test_session_plan_ends_with_the_floor_board_at_the_world_origin():
     rig = make_ring_rig(3, radius=2.5)
     spec = load_board_spec("charuco-a1")
-    traj = plan_session(rig, spec, seed=1, duration_s=30.0, n_closeups=2)
+    traj = plan_session(rig, spec, seed=1, duration_s=40.0, n_closeups=2)
     assert traj.kinds[-1] == "floor" and any(k == "shared" for k in traj.kinds)
-    assert abs(traj.duration - 30.0) < 1e-6
+    assert abs(traj.duration - 40.0) < 1e-6
     R, t = traj.pose([traj.hold_t0[-1] + 0.5])
     assert np.allclose(R[0], R_WORLD_FLOOR_BOARD) and np.allclose(t[0], 0)
     # printed face up: board -z is world +Z

@@ -232,7 +232,7 @@ def _corner_score(spec: BoardSpec, frames: list[np.ndarray]) -> int:
     return total
 
 
-def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int = 8) -> UserError | None:
+def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int = 6) -> UserError | None:
     """Find which board variant a video shows and return the UserError that says so, or
     None when the spec itself is the best match (the board is just seldom seen well).
 

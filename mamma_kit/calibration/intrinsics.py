@@ -95,12 +95,13 @@ def _calibrate(model: str, obj: list[np.ndarray], img: list[np.ndarray], size: t
         K = K0.copy() if K0 is not None else np.array([[max(w, h) * 0.8, 0, (w - 1) / 2],
                                                         [0, max(w, h) * 0.8, (h - 1) / 2], [0, 0, 1.0]])
         D = (d0.copy() if d0 is not None else np.zeros(4)).reshape(4, 1)
-        flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
+        # (OpenCV 5: the general CALIB_* flags, and points shaped (1, N, 3) / (1, N, 2))
+        flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW
         if K0 is not None:
-            flags |= cv2.fisheye.CALIB_USE_INTRINSIC_GUESS
+            flags |= cv2.CALIB_USE_INTRINSIC_GUESS
         crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-        o = [x.reshape(-1, 1, 3).astype(np.float64) for x in obj]
-        i = [x.reshape(-1, 1, 2).astype(np.float64) for x in img]
+        o = [x.reshape(1, -1, 3).astype(np.float64) for x in obj]
+        i = [x.reshape(1, -1, 2).astype(np.float64) for x in img]
         rms, K, D, rv, tv = cv2.fisheye.calibrate(o, i, (w, h), K, D, flags=flags, criteria=crit)
         rv = np.array([np.ravel(r) for r in rv])
         tv = np.array([np.ravel(t) for t in tv])
@@ -370,27 +371,41 @@ def intrinsic_std(cam: Camera, spec: BoardSpec, obj: list, img: list, rv, tv) ->
     return {k: float(v) for k, v in zip(names, sd)}
 
 
-def projection_difference(a: Camera, b: Camera, grid: int = 24) -> tuple[np.ndarray, np.ndarray]:
+def projection_difference(a: Camera, b: Camera, grid: int = 24, region_xy: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """How differently two intrinsics map the same rays, in px over the image.
 
     Pixels of ``a`` are back-projected to rays, the best rotation between the two cameras'
     rays is removed (a rotation is absorbed by the extrinsics), and the rays are projected
-    with ``b``. Returns (xy_g2 grid pixels, diff_g (px))."""
+    with ``b``. Returns (xy_g2 grid pixels, diff_g (px)); with ``region_xy`` (observed
+    pixels) grid points outside their convex hull are NaN: no lens model can be judged
+    where it was never observed (polynomials extrapolate wildly there)."""
     w, h = a.size
     nx = grid
     ny = max(2, round(grid * h / w))
     xs = np.linspace(0.03 * w, 0.97 * w, nx)
     ys = np.linspace(0.03 * h, 0.97 * h, ny)
-    xy = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)
+    xy_all = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)
+    inside = np.ones(len(xy_all), bool)
+    if region_xy is not None and len(region_xy) >= 3:
+        hull = cv2.convexHull(np.asarray(region_xy, np.float32).reshape(-1, 1, 2))
+        inside = np.array([cv2.pointPolygonTest(hull, (float(x), float(y)), False) >= 0 for x, y in xy_all])
+    xy = xy_all[inside]
     ra = np.c_[undistort_points(a, xy), np.ones(len(xy))]
     ra /= np.linalg.norm(ra, axis=1, keepdims=True)
     rb = np.c_[undistort_points(b, xy), np.ones(len(xy))]
     rb /= np.linalg.norm(rb, axis=1, keepdims=True)
-    U, _, Vt = np.linalg.svd(rb.T @ ra)
-    R = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt  # R ra ~ rb
-    rr = ra @ R.T
-    pb = b.normalized_to_pixels(distort_normalized(rr[:, :2] / rr[:, 2:], b.model, b.dist))
-    return xy, np.linalg.norm(pb - xy, axis=1)
+    use = np.ones(len(xy), bool)
+    for _ in range(3):  # rotation fitted where the two agree (extrapolated corners may not)
+        U, _, Vt = np.linalg.svd(rb[use].T @ ra[use])
+        R = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt  # R ra ~ rb
+        rr = ra @ R.T
+        pb = b.normalized_to_pixels(distort_normalized(rr[:, :2] / rr[:, 2:], b.model, b.dist))
+        diff = np.linalg.norm(pb - xy, axis=1)
+        use = diff <= max(3.0 * np.median(diff), 1e-9)
+    out = np.full(len(xy_all), np.nan)
+    out[inside] = diff
+    return xy_all, out
 
 
 def cross_validate(det: Detections, spec: BoardSpec, result: IntrinsicResult, model: str) -> dict | None:
@@ -409,6 +424,10 @@ def cross_validate(det: Detections, spec: BoardSpec, result: IntrinsicResult, mo
         except cv2.error:
             return None
         cams.append(Camera(det.camera, det.size, K, D, model))
-    xy, diff = projection_difference(cams[0], cams[1])
-    return {"xy": xy, "diff_px": diff, "median_px": float(np.median(diff)), "p95_px": float(np.percentile(diff, 95)),
-            "max_px": float(diff.max())}
+    seen = det.xy_fn2[sel].reshape(-1, 2)
+    xy, diff = projection_difference(cams[0], cams[1], region_xy=seen[np.isfinite(seen[:, 0])])
+    d = diff[np.isfinite(diff)]
+    if len(d) == 0:
+        return None
+    return {"xy": xy, "diff_px": diff, "median_px": float(np.median(d)), "p95_px": float(np.percentile(d, 95)),
+            "max_px": float(d.max())}

@@ -391,6 +391,7 @@ class BoardRenderer:
         self.tint = rng.uniform(0.92, 1.05, 3).astype(np.float32)
         self.gain = float(rng.uniform(0.9, 1.1))
         self.background_lit = (self.background * self.vignette * self.gain).astype(np.float32)
+        self._noise, self._noise_sigma, self._noise_k = None, None, 0
         # outline of the paper (board coords), densely sampled so distortion bends it right
         W, H = spec.size_m
         m = self.tex.margin_m
@@ -500,9 +501,15 @@ class BoardRenderer:
             sub = frame[y0:y1, x0:x1]
             frame[y0:y1, x0:x1] = sub * (1 - a[..., None]) + board
         if noise_sigma > 0:
-            noise = np.empty(frame.shape, np.float32)
-            cv2.randn(noise, 0.0, float(noise_sigma))
-            frame += noise
+            # a bank of noise frames drawn once per camera (drawing 6 M normals per 1080p
+            # frame took half the render time); consecutive frames never share one
+            if self._noise is None or self._noise_sigma != noise_sigma:
+                self._noise = np.empty((7,) + frame.shape, np.float32)
+                for k in range(len(self._noise)):
+                    cv2.randn(self._noise[k], 0.0, float(noise_sigma))
+                self._noise_sigma = noise_sigma
+            self._noise_k = (self._noise_k + 1 + int(rng.integers(len(self._noise) - 1))) % len(self._noise)
+            frame += self._noise[self._noise_k]
         return cv2.convertScaleAbs(frame)
 
 def _rig_board_poses(cam: Camera, R_wb: np.ndarray, t_wb: np.ndarray):
