@@ -3,8 +3,9 @@
 Detections of one camera are dense arrays over its sampled frames: ``xy_fn2`` (F, N, 2)
 pixel positions of the N chessboard corners with NaN where a corner was not found, and
 ``times_f`` (F,) the frames' timestamps on the camera's own clock. Large frames are
-searched for markers at a reduced size and the corners refined at full resolution
-(cornerSubPix), so 4K phone videos cost about as much as 1080p ones.
+searched for markers at a reduced size, then OpenCV interpolates and refines the chessboard
+corners at full resolution from the scaled-up markers, so 4K phone videos cost little more
+than 1080p ones.
 """
 
 from __future__ import annotations
@@ -78,13 +79,19 @@ class BoardFinder:
         n_markers = 0 if mi is None else len(mi)
         if ci is None or len(ci) == 0:
             return out, n_markers
+        if scale != 1.0:
+            # markers found small, chessboard corners interpolated and refined by OpenCV at full
+            # resolution from the scaled-up markers (0.07 px on 4K renders, vs 0.11 px for a
+            # cornerSubPix of upscaled corners, at the cost of the small search)
+            mc_full = tuple(((np.asarray(m, np.float64).reshape(1, 4, 2) + 0.5) / scale - 0.5).astype(np.float32)
+                            for m in mc)
+            cc, ci, _, _ = self.detector.detectBoard(grey, markerCorners=mc_full, markerIds=mi)
+            if ci is None or len(ci) == 0:
+                return out, n_markers
         ids = ci.ravel().astype(int)
         xy = cc.reshape(-1, 2).astype(np.float64)
         keep = (ids >= 0) & (ids < n)
         ids, xy = ids[keep], xy[keep]
-        if scale != 1.0:
-            xy = (xy + 0.5) / scale - 0.5
-            xy = self._refine(grey, ids, xy)
         keep = self._consistent(ids, xy)
         out[ids[keep]] = xy[keep]
         return out, n_markers
@@ -105,20 +112,6 @@ class BoardFinder:
             return np.zeros(len(ids), bool)
         inl = inl.ravel().astype(bool)
         return inl if inl.mean() >= 0.7 else np.zeros(len(ids), bool)
-
-    def _refine(self, grey: np.ndarray, ids: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        """cornerSubPix at full resolution with a window a fifth of the local square size."""
-        if len(xy) < 2:
-            return xy
-        d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
-        np.fill_diagonal(d, np.inf)
-        sq = float(np.median(d.min(1)))
-        # neighbouring corner ids are one square apart: bound by the nearest-corner distance
-        win = int(np.clip(0.2 * sq, 2, 15))
-        pts = xy.astype(np.float32).reshape(-1, 1, 2)
-        cv2.cornerSubPix(grey, pts, (win, win), (-1, -1),
-                         (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3))
-        return pts.reshape(-1, 2).astype(np.float64)
 
 
 def frame_step_for(nominal_fps: float, max_fps: float | None) -> int:

@@ -27,6 +27,8 @@ def undistort_exact(cam: Camera, xy_n2: np.ndarray) -> np.ndarray:
     eps = 1e-7
     for _ in range(4):
         f = distort_normalized(x, cam.model, cam.dist) - xd
+        if np.nanmax(np.abs(f), initial=0.0) < 1e-13:  # converged (OpenCV's start often is)
+            break
         fx = (distort_normalized(x + [eps, 0], cam.model, cam.dist) - xd - f) / eps
         fy = (distort_normalized(x + [0, eps], cam.model, cam.dist) - xd - f) / eps
         det = fx[:, 0] * fy[:, 1] - fy[:, 0] * fx[:, 1]

@@ -120,7 +120,14 @@ def calibrate_cmd(
     result = calibrate({n: Path(p) for n, p in videos.items()}, spec, settings, intrinsics=rig_intr,
                        intrinsics_src=str(intrinsics), clocks=clocks, progress=not quiet,
                        cache_dir=ws.cache_dir / "board-detections" if ws is not None else None)
-    prod = producer("calibrate " + " ".join(str(t) for t in targets))
+    if manifest is not None:
+        hashes = {str(p): manifest.hasher(p) for p in inputs}
+        manifest.hasher.save()
+    else:
+        from mamma_kit.core.io import sha256_file
+
+        hashes = {str(p): sha256_file(p) for p in inputs}
+    prod = producer("calibrate " + " ".join(str(t) for t in targets), hashes)
     figures = write_outputs(result, out, spec, None if no_figures else report, prod)
     if manifest is not None and out == ws.calibration:
         manifest.record(inputs, run_settings, [out], {"rms_px": result.diagnostics["rms_px"]},

@@ -183,6 +183,7 @@ def volume_center(rig: Rig) -> np.ndarray:
 def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float = 60.0, closeups: bool = True,
                  n_closeups: int = 8, floor_pose: bool = True, hold_s: tuple[float, float] = (0.8, 1.6),
                  closeup_hold_s: tuple[float, float] = (0.3, 0.7), floor_hold_s: float = 2.5, floor_places: int = 3,
+                 floor_radius: tuple[float, float] = (0.6, 1.2),
                  speed_mps: float = 0.8, tremor_m: float = 0.0003, volume_radius: float | None = None,
                  height_range: tuple[float, float] = (0.6, 1.8), closeup_fill: tuple[float, float] = (0.35, 0.8),
                  max_tilt_deg: float = 40.0, max_view_angle_deg: float = 55.0) -> BoardTrajectory:
@@ -256,7 +257,7 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
             if len(out) >= n:
                 break
             a = rng.uniform(0, 2 * np.pi)
-            rr = rng.uniform(0.6, 1.2) * r_vol
+            rr = rng.uniform(*floor_radius) * r_vol
             R = R_WORLD_FLOOR_BOARD @ Rotation.from_rotvec([0, 0, rng.uniform(-np.pi, np.pi)]).as_matrix()
             p = c0 + rr * np.array([np.cos(a), np.sin(a), 0.0])
             t = p - R @ spec.center_b3
