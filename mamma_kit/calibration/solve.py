@@ -9,6 +9,7 @@ still-board events and intrinsic views; the world frame from the board on the fl
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +44,7 @@ class Settings:
     floor: bool = True  # look for the board on the floor
     cross_validation: bool = True
     max_detect_width: int = 2000
+    workers: int | None = None  # processes for detection (default: one per CPU)
 
     def to_dict(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if v is not None}
@@ -98,8 +100,22 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
                             "sync these board videos first or calibrate without a timing model")
     # 1. detection
     dets: dict[str, Detections] = dict(detections or {})
-    for n in names:
-        if n not in dets:
+    todo = [n for n in names if n not in dets]
+    workers = min(len(todo), st.workers or os.cpu_count() or 1)
+    if workers > 1:
+        # one process per camera video (decoding and ArUco search are per-frame work that
+        # does not share state); the cache is read and written by the workers
+        import concurrent.futures as cf
+        import multiprocessing as mp
+
+        log.info(f"detecting the board in {len(todo)} videos ({workers} processes)")
+        with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+            futs = {n: pool.submit(_cached_detections, videos[n], spec, n, st, cache_dir, False, log.is_quiet())
+                    for n in todo}
+            for n in todo:
+                dets[n] = futs[n].result()
+    else:
+        for n in todo:
             dets[n] = _cached_detections(videos[n], spec, n, st, cache_dir, progress)
     for n in names:
         if len(dets[n].usable(spec)) < MIN_VIEWS:
@@ -310,9 +326,11 @@ def write_outputs(result: CalibrationResult, out: Path, spec: BoardSpec, report_
 
 
 def _cached_detections(video: Path, spec: BoardSpec, name: str, st: Settings, cache_dir: Path | None,
-                       progress: bool) -> Detections:
+                       progress: bool, quiet: bool | None = None) -> Detections:
     """Detections of one video, reused from ``cache_dir`` when the video (size, mtime), the
     board spec and the detection settings are unchanged."""
+    if quiet is not None:  # in a worker process
+        log.set_quiet(quiet)
     from mamma_kit.core.io import read_npz, sha256_json, write_npz
 
     key = None
