@@ -134,7 +134,12 @@ def run_mamma(videos: list[Path], spec: str, out: Path, extra: list[str]) -> dic
     return {"summary": json.loads(p.stdout), "seconds": dt}
 
 
-def run_anipose(videos: list[Path], names: list[str], spec, out: Path, fps: float) -> dict:
+def run_anipose(videos: list[Path], names: list[str], spec, out: Path, fps: float, rerun: bool = False) -> dict:
+    """aniposelib's calibration of the videos (its result is kept and reused unless rerun:
+    aniposelib does not change between runs of this script, mamma-kit does)."""
+    done = out.with_suffix(".json")
+    if not rerun and done.exists() and out.exists():
+        return json.loads(done.read_text())
     py = ensure_venv()
     bits = int(spec.dictionary.split("_")[1][0])
     cfg = {"squares_x": spec.squares_x, "squares_y": spec.squares_y, "square_m": spec.square_m,
@@ -149,7 +154,9 @@ def run_anipose(videos: list[Path], names: list[str], spec, out: Path, fps: floa
     if p.returncode != 0 or not out.exists():
         return {"failed": (p.stderr.strip().splitlines() or ["no output"])[-1][:300], "seconds": dt}
     info = json.loads(p.stdout.strip().splitlines()[-1])
-    return {"error": info["error"], "seconds": dt}
+    res = {"error": info["error"], "seconds": dt}
+    done.write_text(json.dumps(res))
+    return res
 
 
 def evaluate(path: Path, gt_path: Path, fmt: str | None, pinned: bool) -> dict:
@@ -188,6 +195,7 @@ def main() -> None:
     ap.add_argument("--offsets", action="store_true", help="also run on copies starting at different moments")
     ap.add_argument("--no-anipose", action="store_true")
     ap.add_argument("--rerender", action="store_true")
+    ap.add_argument("--rerun-anipose", action="store_true", help="recompute aniposelib's result even if present")
     args = ap.parse_args()
 
     from mamma_kit.calibration.board import load_board_spec
@@ -216,17 +224,21 @@ def main() -> None:
     r = run_mamma(videos, args.board, out / "mamma-synced.toml", ["--no-figures", "--synced"])
     add("mamma-kit --synced", r, out / "mamma-synced.toml", "mamma-kit", True, r.get("summary", {}).get("rms_px"))
     if not args.no_anipose:
-        r = run_anipose(videos, names, spec, out / "anipose.toml", args.fps)
+        r = run_anipose(videos, names, spec, out / "anipose.toml", args.fps, args.rerun_anipose)
         add("aniposelib", r, out / "anipose.toml", "anipose", False, r.get("error"))
     if args.offsets:
-        skips = shift_videos(out / "board", out / "board-offsets", names, args.fps, args.seed)
+        if args.rerender or not (out / "board-offsets" / f"{names[-1]}.mp4").exists():
+            skips = shift_videos(out / "board", out / "board-offsets", names, args.fps, args.seed)
+        else:
+            skips = json.loads((out / "offsets.json").read_text())
+        (out / "offsets.json").write_text(json.dumps(skips))
         print(f"start offsets (s): {skips}", flush=True)
         sv = [out / "board-offsets" / f"{n}.mp4" for n in names]
         r = run_mamma(sv, args.board, out / "mamma-offsets.toml", ["--no-figures"])
         add("mamma-kit (clock offsets)", r, out / "mamma-offsets.toml", "mamma-kit", True,
             r.get("summary", {}).get("rms_px"))
         if not args.no_anipose:
-            r = run_anipose(sv, names, spec, out / "anipose-offsets.toml", args.fps)
+            r = run_anipose(sv, names, spec, out / "anipose-offsets.toml", args.fps, args.rerun_anipose)
             add("aniposelib (clock offsets)", r, out / "anipose-offsets.toml", "anipose", False, r.get("error"))
 
     w, h = args.size.split("x")

@@ -286,27 +286,40 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
         moves = [move_time(seq[k - 1][1], seq[k - 1][0], seq[k][1], seq[k][0]) for k in range(1, len(seq))]
         return seq, np.array(moves)
 
-    # as many shared holds as fit the duration (at least one per camera pair on the ring)
+    # as many shared holds as fit the duration; when even two per neighbouring pair do not
+    # fit, fewer close-ups (down to 3 per camera) before the moves get faster than a person
     n = len(pool)
     while True:
         poses, moves = sequence(n)
         total = 0.3 + sum(p[3] for p in poses) + moves.sum()
-        if total <= duration_s or n <= min(len(pool), 2 * len(cams)):
+        if total <= duration_s:
             break
-        n -= 1
+        if n > min(len(pool), 2 * len(cams)):
+            n -= 1
+        elif max(len(v) for v in close.values()) > 3:
+            for c in cams:
+                close[c.name] = close[c.name][:max(3, len(close[c.name]) - 1)]
+        else:
+            break
     if not poses:
         raise ValueError("board session has no poses")
-    # stretch (or, for a too short duration, compress) the moves to fill the duration exactly
-    spare = duration_s - 0.3 - sum(p[3] for p in poses)
+    # stretch (or, for a too short duration, compress) the moves to fill the duration
+    # exactly; if moving 2.5x faster than planned is not enough, holds get shorter too
+    holds = np.array([p[3] for p in poses])
+    spare = duration_s - 0.3 - holds.sum()
     if len(moves) and moves.sum() > 0:
         moves = moves * max(spare, 0.4 * moves.sum()) / moves.sum()
+    over = 0.3 + holds.sum() + moves.sum() - duration_s
+    if over > 1e-9:
+        f = (duration_s - 0.3) / (holds.sum() + moves.sum())
+        holds, moves = holds * f, moves * f
     t0s, t1s = [], []
     t = 0.3
-    for k, (R, p, kind, hold) in enumerate(poses):
+    for k in range(len(poses)):
         if k:
             t += moves[k - 1]
         t0s.append(t)
-        t += hold
+        t += holds[k]
         t1s.append(t)
     t0s, t1s = np.array(t0s), np.array(t1s)
     return BoardTrajectory(spec, np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]),
