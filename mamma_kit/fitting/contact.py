@@ -24,9 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from mamma_kit.body import skeleton as sk
-from mamma_kit.body.proxy import closest_point_on_triangle, edge_neighbours
+from mamma_kit.body.proxy import closest_point_on_triangle, edge_neighbours, winding_number
 
 LIMB_PARTS = ("left_upper_arm", "right_upper_arm", "left_lower_arm", "right_lower_arm", "left_hand", "right_hand",
               "left_upper_leg", "right_upper_leg", "left_lower_leg", "right_lower_leg", "left_foot", "right_foot")
@@ -41,7 +42,10 @@ class ContactConfig:
     p_span: float = 0.4
     margin: float = 0.02  # m around the other's box
     reach: float = 0.10  # m: contact landmarks farther than this from the other body are not pulled
-    k_vertices: int = 4
+    deep: float = 0.02  # m: penetrations are looked for this deep below the other's surface
+    hand_stride: int = 2  # every n-th hand vertex joins the repulsion points
+    refresh_every: int = 2  # Gauss-Newton iterations between active-set refreshes
+    k_vertices: int = 2
 
 
 def contact_weights(contact: np.ndarray, present: np.ndarray, cfg: ContactConfig) -> np.ndarray:
@@ -123,14 +127,16 @@ class ContactModel:
         return out.numpy()
 
     @torch.no_grad()
-    def _closest(self, pts: torch.Tensor, verts_b: torch.Tensor, fidx: torch.Tensor):
+    def _closest(self, pts: torch.Tensor, verts_b: torch.Tensor, fidx: torch.Tensor,
+                 near_ids: torch.Tensor | None = None):
         """pts (n, 3), verts_b (G, Nv, 3), fidx (n,) frame of each point -> face (n,), sign (n,), dist (n,)."""
         n = len(pts)
         nf, nv = pseudo_normals(verts_b, self.faces)
-        near = torch.empty(n, self.cfg.k_vertices, dtype=torch.long)
-        for g in torch.unique(fidx).tolist():  # nearest proxy vertices, one small cdist per frame
+        near = torch.empty(n, self.cfg.k_vertices, dtype=torch.long) if near_ids is None else near_ids
+        for g in (torch.unique(fidx).tolist() if near_ids is None else []):  # nearest proxy vertices, per frame
             sel = torch.nonzero(fidx == g).flatten()
-            near[sel] = torch.topk(torch.cdist(pts[sel], verts_b[g]), self.cfg.k_vertices, dim=1, largest=False).indices
+            near[sel] = torch.topk(torch.cdist(pts[sel], verts_b[g]), self.cfg.k_vertices, dim=1,
+                                   largest=False).indices
         cand = self.vf[near].reshape(n, -1)  # (n, k * D) triangles around them
         valid = cand >= 0
         cand = cand.clamp(min=0)
@@ -152,14 +158,28 @@ class ContactModel:
         other = self.nb[f, (reg - 4).clamp(0, 2)].clamp(min=0)
         pn = torch.where(ise[:, None], nf[fidx, f] + nf[fidx, other], pn)
         sign = torch.where(((pts - qb) * pn).sum(-1) < 0, -1.0, 1.0)
-        return f, sign, dd[ar, best].sqrt()
+        dist = dd[ar, best].sqrt()
+        # a posed, decimated proxy folds onto itself (curled fingers, armpits), where the
+        # pseudo-normal's sign can be wrong: confirm every "inside" and every point within
+        # 1 cm of the surface by the generalized winding number (robust to folds)
+        check = torch.nonzero((sign < 0) | (dist < 0.01)).flatten()
+        if len(check):
+            fc = fidx[check]
+            for g in torch.unique(fc).tolist():
+                sel = check[fc == g]
+                inside = winding_number(pts[sel], verts_b[g][self.faces], chunk=64) > 0.5
+                sign[sel] = torch.where(inside, -1.0, 1.0)
+        return f, sign, dist
 
     @torch.no_grad()
-    def refresh(self, proxy_verts: torch.Tensor, landmarks: torch.Tensor, weights: torch.Tensor) -> list[ActiveSet]:
+    def refresh(self, proxy_verts: torch.Tensor, landmarks: torch.Tensor, weights: torch.Tensor,
+                points: torch.Tensor | None = None) -> list[ActiveSet]:
         """proxy_verts (P, G, Nv, 3) and landmarks (P, G, L, 3) at the gated frames, pull
-        weights (P, G, L) -> active sets for every ordered pair."""
+        weights (P, G, L) -> active sets for every ordered pair. ``points`` (P, G, Nc, 3): the
+        repulsion points (default: the proxy vertices); ActiveSet.point indexes them."""
         cfg = self.cfg
         P, G = proxy_verts.shape[:2]
+        points = proxy_verts if points is None else points
         lo = proxy_verts.amin(2) - cfg.margin
         hi = proxy_verts.amax(2) + cfg.margin
         sets = []
@@ -167,18 +187,34 @@ class ContactModel:
             for b in range(P):
                 if a == b:
                     continue
-                inside_box = ((proxy_verts[a] >= lo[b][:, None]) & (proxy_verts[a] <= hi[b][:, None])).all(-1)
+                inside_box = ((points[a] >= lo[b][:, None]) & (points[a] <= hi[b][:, None])).all(-1)
                 fr_r, pt_r = torch.nonzero(inside_box, as_tuple=True)
                 w = weights[a] * self.limb.to(weights.dtype)
                 fr_c, pt_c = torch.nonzero(w > 0, as_tuple=True)
-                pts = torch.cat([proxy_verts[a][fr_r, pt_r], landmarks[a][fr_c, pt_c]])
+                pts = torch.cat([points[a][fr_r, pt_r], landmarks[a][fr_c, pt_c]])
                 fr = torch.cat([fr_r, fr_c])
                 is_lm = torch.cat([torch.zeros(len(fr_r), dtype=torch.bool), torch.ones(len(fr_c), dtype=torch.bool)])
                 point = torch.cat([pt_r, pt_c])
                 wt = torch.cat([torch.zeros(len(fr_r)), w[fr_c, pt_c].float()])
                 if len(pts) == 0:
                     continue
-                face, sign, dist = self._closest(pts.float(), proxy_verts[b].float(), fr)
+                # only points near b's surface need the triangle search: the proxy's edges are
+                # ~3 cm, so a point within the reach of its surface is within reach + 3 cm of a
+                # vertex (points deeper inside than that are not caught: rare, and caught once
+                # the repulsion has pushed the shallower ones out)
+                near = torch.zeros(len(pts), dtype=torch.bool)
+                nn = torch.zeros(len(pts), cfg.k_vertices, dtype=torch.long)
+                lim = np.where(is_lm.numpy(), cfg.reach + 0.03, cfg.deep + 0.03)
+                pts_np, pb_np = pts.numpy(), proxy_verts[b].numpy()
+                for g in torch.unique(fr).tolist():  # a k-d tree of b's proxy per frame
+                    sel = torch.nonzero(fr == g).flatten().numpy()
+                    dn, ni = cKDTree(pb_np[g]).query(pts_np[sel], k=cfg.k_vertices)
+                    near[sel] = torch.as_tensor(dn[:, 0] < lim[sel])
+                    nn[sel] = torch.as_tensor(ni, dtype=torch.long)
+                pts, fr, is_lm, point, wt, nn = pts[near], fr[near], is_lm[near], point[near], wt[near], nn[near]
+                if len(pts) == 0:
+                    continue
+                face, sign, dist = self._closest(pts.float(), proxy_verts[b].float(), fr, nn)
                 keep = torch.where(is_lm, (dist < cfg.reach) & (sign > 0),  # pull only what is outside and near
                                    (sign < 0) | (dist < cfg.margin))
                 sets.append(ActiveSet(a, b, fr[keep], point[keep], is_lm[keep], face[keep], sign[keep], wt[keep]))
@@ -207,3 +243,224 @@ class ContactModel:
                 depth += float((-d[inside]).sum())
         return {"repulsion": rep, "contact": con, "inside_points": n_in,
                 "mean_depth_mm": 1000 * depth / max(n_in, 1)}
+
+
+def barycentric(q: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
+    """Barycentric coordinates (E, 3) of points q (E, 3) on their triangles' planes (E, 3, 3)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1, v2 = b - a, c - a, q - a
+    d00, d01, d11 = (v0 * v0).sum(-1), (v0 * v1).sum(-1), (v1 * v1).sum(-1)
+    d20, d21 = (v2 * v0).sum(-1), (v2 * v1).sum(-1)
+    den = (d00 * d11 - d01 * d01).clamp(min=1e-20)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return torch.stack([1 - v - w, v, w], -1)
+
+
+class ContactTerms:
+    """Stage 4's contact and repulsion terms for the Gauss-Newton solver.
+
+    The points are the proxy vertices and landmarks of every person (one kinematics over
+    both sets); the active set (contact.ActiveSet, refreshed every iteration) pairs a point
+    of one person with a triangle of another. Linearised along the unit normal n from the
+    closest point q to the point x, d(delta) ~ d + n.(dx - dq): each pair gives one row for
+    the point's person (lever arms of x) and one for the triangle's person (lever arms of its
+    three vertices, weighted by q's barycentric coordinates), in the same frame."""
+
+    def __init__(self, model, cfg: ContactConfig, frames: np.ndarray, pull_w: torch.Tensor, active: tuple):
+        from mamma_kit.fitting.kinematics import BodyKinematics
+
+        self.cm = ContactModel(model, cfg)
+        self.cfg = cfg
+        self.Np = len(self.cm.proxy_ids)
+        # repulsion points: the proxy's vertices plus the hands' own vertices (fingers are too
+        # thin for the proxy, and hands are where people touch); then the landmarks (pull)
+        hands = [sk.PART_NAMES.index(p) for p in ("left_hand", "right_hand")]
+        hand_ids = np.setdiff1d(np.flatnonzero(np.isin(model.vertex_part, hands)), self.cm.proxy_ids)
+        self.coll_ids = np.concatenate([self.cm.proxy_ids, hand_ids[::cfg.hand_stride]])
+        self.Nc = len(self.coll_ids)
+        self.kin = BodyKinematics(model, np.concatenate([self.coll_ids, model.landmark_ids]))
+        self.frames = torch.as_tensor(frames)
+        self.pull_w = pull_w  # (P, T, L)
+        act = np.asarray(active, np.int64)
+        pos = np.full(self.kin.J + 1, -1, np.int64)
+        pos[act] = np.arange(len(act))
+        self.pos = torch.as_tensor(pos)
+        self.n = 3 * len(act) + 3
+        self.sets: list[ActiveSet] = []
+        self.stats = {"inside_points": 0, "pairs": 0}
+
+    def _all_points(self, f, betas, transl):
+        """Posed collision points (P, G, Nc, 3) (proxy vertices first) and landmarks (P, G, L, 3)
+        at the gated frames."""
+        P, G, U = betas.shape[0], len(self.frames), self.kin.N
+        pi = torch.arange(P).repeat_interleave(G * U)
+        ti = self.frames.repeat_interleave(U).repeat(P)
+        vi = torch.arange(U).repeat(P * G)
+        v, _ = self.kin.points(f, betas, transl, pi, ti, vi)
+        v = v.reshape(P, G, U, 3)
+        return v[:, :, :self.Nc], v[:, :, self.Nc:]
+
+    @torch.no_grad()
+    def refresh(self, f, betas, transl, force: bool = False) -> None:
+        self._calls = getattr(self, "_calls", -1) + 1
+        if self.sets and not force and self._calls % self.cfg.refresh_every:
+            return
+        cp, lm = self._all_points(f, betas, transl)
+        self.sets = self.cm.refresh(cp[:, :, :self.Np], lm, self.pull_w[:, self.frames], points=cp)
+        self.stats["pairs"] = int(sum(len(s.frame) for s in self.sets))
+
+    def _pairs(self):
+        s = self.sets
+        if not s:
+            return None
+        cat = lambda k: torch.cat([getattr(x, k) for x in s])  # noqa: E731
+        a = torch.cat([torch.full((len(x.frame),), x.a) for x in s])
+        b = torch.cat([torch.full((len(x.frame),), x.b) for x in s])
+        is_lm = cat("is_landmark")
+        ui = torch.where(is_lm, self.Nc + cat("point"), cat("point"))
+        return a, b, self.frames[cat("frame")], ui, cat("face"), cat("sign"), cat("weight"), is_lm
+
+    def evaluate(self, f, betas, transl, jac: bool):
+        """Energy (scalar, float64) [and per-block normal-equation additions (P, T, n, n), (P, T, n)]."""
+        pr = self._pairs()
+        P, T = transl.shape[:2]
+        if pr is None:
+            z = torch.zeros((), dtype=torch.float64)
+            return (z, None, None) if jac else z
+        a, b, t, ui, face, sign, w, is_lm = pr
+        cfg = self.cfg
+        x, ux = self.kin.points(f, betas, transl, a, t, ui, jac=jac)
+        tv = self.cm.faces[face]  # (E, 3) proxy vertex ids = U indices
+        E = len(a)
+        tri, ut = self.kin.points(f, betas, transl, b.repeat_interleave(3), t.repeat_interleave(3), tv.reshape(-1),
+                                  jac=jac)
+        tri = tri.reshape(E, 3, 3)
+        q = closest_point_on_triangle(x, tri[:, 0], tri[:, 1], tri[:, 2])
+        diff = x - q
+        dist = diff.norm(dim=-1).clamp(min=1e-9)
+        d = sign * dist
+        nrm = diff * (sign / dist)[:, None]  # d d / d x
+        rep_on = ~is_lm & (d < -cfg.delta)
+        con_on = is_lm & (d > 0)
+        c = torch.where(rep_on, torch.full_like(d, 1 / cfg.sigma_rep),
+                        torch.where(con_on, w.sqrt() / cfg.sigma_con, torch.zeros_like(d)))
+        e = torch.where(rep_on, (d + cfg.delta), torch.where(con_on, d, torch.zeros_like(d))) * c
+        energy = (e.double() ** 2).sum()
+        with torch.no_grad():
+            inside = ~is_lm & (d < 0)
+            self.stats["inside_points"] = int(inside.sum())
+        if not jac:
+            return energy
+        keep = c > 0
+        if not bool(keep.any()):
+            return energy, None, None
+        # rows of the linearised residual e + c n.(J_x da - J_q db), in "min |r - A delta|^2" form
+        bary = barycentric(q, tri)  # (E, 3)
+        ka = keep.nonzero().flatten()
+        A_a = point_rows(self.kin, self.pos, self.n, ux[ka][:, None], ui[ka][:, None], c[ka][:, None], nrm[ka])
+        A_b = point_rows(self.kin, self.pos, self.n, ut.reshape(E, 3, -1, 3)[ka], tv[ka],
+                         -(c[ka][:, None] * bary[ka]), nrm[ka])
+        # each pair's residual is shared by two people solved side by side (block Jacobi): each
+        # side takes half of the correction (doubled curvature), so together they do not overshoot
+        Nadd, radd = accumulate_rows(torch.cat([A_a, A_b]), torch.cat([a[ka] * T + t[ka], b[ka] * T + t[ka]]),
+                                     torch.cat([-e[ka], -e[ka]]), P, T, self.n, curvature=2.0)
+        return energy, Nadd, radd
+
+
+def point_rows(kin, pos: torch.Tensor, n: int, u: torch.Tensor, vid: torch.Tensor, coef: torch.Tensor,
+               nrm: torch.Tensor) -> torch.Tensor:
+    """Jacobian rows (k, n) of sum_v coef_v n.x_v for k entries, each over V vertices.
+
+    u (k, V, M, 3) lever arms, vid (k, V) vertex ids (for their influence slots), coef (k, V),
+    nrm (k, 3). A world rotation eps_j moves x by eps_j x u, so n.dx = eps_j.(u x n)."""
+    k = len(u)
+    A = torch.zeros(k, n)
+    if k == 0:
+        return A
+    val = torch.cross(u, nrm[:, None, None, :].expand_as(u), dim=-1) * coef[..., None, None]  # (k, V, M, 3)
+    col = pos[kin.infl[vid]]  # (k, V, M) active position or -1
+    ok = col >= 0
+    kk = torch.arange(k)[:, None, None].expand_as(col)
+    for dim in range(3):
+        A.index_put_((kk[ok], 3 * col[ok] + dim), val[..., dim][ok].to(A.dtype), accumulate=True)
+    A[:, -3:] += nrm * coef.sum(1, keepdim=True)
+    return A
+
+
+def accumulate_rows(A: torch.Tensor, blk: torch.Tensor, r: torch.Tensor, P: int, T: int, n: int,
+                    curvature: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-block normal-equation additions (P, T, n, n), (P, T, n) from rows A (k, n) of
+    blocks blk (k,) (= person * T + frame) with residuals r (k,)."""
+    Nadd = torch.zeros(P * T, n, n, dtype=torch.float64)
+    radd = torch.zeros(P * T, n, dtype=torch.float64)
+    if len(blk):
+        order = torch.argsort(blk)
+        blk, A, r = blk[order], A[order].double(), r[order].double()
+        ub, counts = torch.unique_consecutive(blk, return_counts=True)
+        slot = torch.arange(len(blk)) - torch.repeat_interleave(torch.cumsum(counts, 0) - counts, counts)
+        bi = torch.repeat_interleave(torch.arange(len(ub)), counts)
+        Ap = torch.zeros(len(ub), int(counts.max()), n, dtype=torch.float64)
+        rp = torch.zeros(len(ub), int(counts.max()), dtype=torch.float64)
+        Ap[bi, slot] = A
+        rp[bi, slot] = r
+        Nadd[ub] = curvature * (Ap.transpose(1, 2) @ Ap)
+        radd[ub] = (Ap.transpose(1, 2) @ rp[..., None])[..., 0]
+    return Nadd.reshape(P, T, n, n), radd.reshape(P, T, n)
+
+
+class FloorTerms:
+    """Optional floor terms (world floor at z = 0): foot landmarks below the floor are pushed
+    up, and those whose view-averaged floor-contact weight is positive are pulled onto it:
+    sum relu(-z)^2 / s^2 + sum w z^2 / s^2, for one person at a time (no coupling)."""
+
+    def __init__(self, kin, foot: np.ndarray, weight: torch.Tensor, sigma: float, active: tuple):
+        self.kin, self.sigma = kin, sigma
+        self.foot = torch.as_tensor(foot)
+        self.weight = weight  # (P, T, L)
+        act = np.asarray(active, np.int64)
+        pos = np.full(kin.J + 1, -1, np.int64)
+        pos[act] = np.arange(len(act))
+        self.pos = torch.as_tensor(pos)
+        self.n = 3 * len(act) + 3
+
+    def refresh(self, f, betas, transl) -> None:
+        pass
+
+    def evaluate(self, f, betas, transl, jac: bool):
+        P, T = transl.shape[:2]
+        z = f["v"][:, :, self.foot, 2]  # (P, T, F)
+        w = self.weight[:, :, self.foot]
+        c = torch.where(z < 0, torch.full_like(z, 1 / self.sigma), w.sqrt() / self.sigma)
+        e = c * z
+        energy = (e.double() ** 2).sum()
+        if not jac:
+            return energy
+        pi, ti, li = torch.nonzero(c > 0, as_tuple=True)
+        if not len(pi):
+            return energy, None, None
+        _, u = self.kin.points(f, betas, transl, pi, ti, self.foot[li], jac=True)
+        nrm = torch.tensor([0.0, 0.0, 1.0]).expand(len(pi), 3)
+        A = point_rows(self.kin, self.pos, self.n, u[:, None], self.foot[li][:, None], c[pi, ti, li][:, None], nrm)
+        return (energy, *accumulate_rows(A, pi * T + ti, -e[pi, ti, li], P, T, self.n))
+
+
+class Terms:
+    """Several extra terms as one (GNConfig.extra)."""
+
+    def __init__(self, parts: list):
+        self.parts = parts
+
+    def refresh(self, f, betas, transl) -> None:
+        for p in self.parts:
+            p.refresh(f, betas, transl)
+
+    def evaluate(self, f, betas, transl, jac: bool):
+        out = [p.evaluate(f, betas, transl, jac) for p in self.parts]
+        if not jac:
+            return sum(out)
+        E = sum(o[0] for o in out)
+        Ns = [o for o in out if o[1] is not None]
+        if not Ns:
+            return E, None, None
+        return E, sum(o[1] for o in Ns), sum(o[2] for o in Ns)

@@ -60,6 +60,11 @@ class GNConfig:
     landmark_weight: torch.Tensor | None = None  # (L,) multiplies visibility (stage 1: rigid parts)
     tol: float = 1e-5
     mu0: float = 1e-3
+    betas_iterations: int = 1000  # shape is optimised in the first iterations only
+    temporal_times: np.ndarray | None = None  # (T,) frame times: adds the joint-acceleration term
+    accel_sigma: float = 30.0  # m/s^2
+    extra: object | None = None  # e.g. contact.ContactTerms: refresh(f, betas, transl), evaluate(f, betas, transl, jac)
+    max_step: tuple[float, float] | None = None  # per block: largest joint rotation (rad), translation (m)
 
     def gamma(self, k: int) -> float:
         if self.iterations <= 1:
@@ -95,6 +100,8 @@ class GaussNewton:
         self.inv_sigma = (1.0 / obs.sigma).to(CDTYPE)
         ps = np.full(55, np.inf) if cfg.prior_sigma is None else np.asarray(cfg.prior_sigma, float)
         self.prior_w = torch.as_tensor(1.0 / ps[list(cfg.active)] ** 2, dtype=DTYPE)  # (A,)
+        self.times = None if cfg.temporal_times is None else torch.as_tensor(
+            np.asarray(cfg.temporal_times, float) - float(cfg.temporal_times[0]), dtype=DTYPE)
 
     # ---- energy ----------------------------------------------------------------------------
     def data_terms(self, v: torch.Tensor, gamma: float, jac: bool):
@@ -114,10 +121,15 @@ class GaussNewton:
         sq = torch.sqrt(w * drho)  # (C, P, T, L)
         Jw = Jp * (self.inv_sigma * sq[..., None])[..., None]  # (C, P, T, L, 2, 3) whitened
         rw = r * sq[..., None]
-        C, P, T, L = sq.shape
-        Jf = Jw.permute(1, 2, 3, 0, 4, 5).reshape(P * T * L, 2 * C, 3)
-        H = (Jf.transpose(1, 2) @ Jf).reshape(P, T, L, 3, 3)
-        g = (Jf.transpose(1, 2) @ rw.permute(1, 2, 3, 0, 4).reshape(P * T * L, 2 * C, 1)).reshape(P, T, L, 3)
+        # per landmark H = sum_rows Jw^T Jw (3x3), g = sum_rows Jw^T r: six products summed
+        # over cameras and axes (tiny batched matmuls are far slower on a CPU)
+        H = torch.empty(*sq.shape[1:], 3, 3, dtype=CDTYPE)
+        for i in range(3):
+            for j in range(i, 3):
+                H[..., i, j] = (Jw[..., i] * Jw[..., j]).sum((0, -1))
+                if j != i:
+                    H[..., j, i] = H[..., i, j]
+        g = (Jw * rw.unsqueeze(-1)).sum((0, -2))
         return E, H, g
 
     def prior_terms(self, rot: torch.Tensor, G: torch.Tensor | None = None):
@@ -136,37 +148,82 @@ class GaussNewton:
         rhs = -(pw[..., 0] * (Jr.transpose(-1, -2) @ th[..., None])[..., 0])
         return E, Nd, rhs
 
-    def energy(self, st: State, gamma: float) -> torch.Tensor:
+    def temporal_terms(self, joints: torch.Tensor, grad: bool = False):
+        """Joint-acceleration energy per person (P,) [and, per frame, the Gauss-Newton
+        weight h (P, T) of each joint coordinate and right-hand side (P, T, 55, 3)].
+
+        a_t = c- p_{t-1} + c0 p_t + c+ p_{t+1} (second divided difference on the true frame
+        times), E = sum |a|^2 / s^2. Treating the neighbouring frames as fixed (block Jacobi)
+        each frame sees its joints as points with weight sum c^2 / s^2."""
+        t = self.times
+        p = joints.to(DTYPE)
+        P, T = p.shape[:2]
+        if T < 3:
+            z = torch.zeros(P, dtype=DTYPE)
+            return (z, torch.zeros(P, T, dtype=DTYPE), torch.zeros_like(p)) if grad else z
+        d1, d2, dd = t[1:-1] - t[:-2], t[2:] - t[1:-1], t[2:] - t[:-2]
+        cm, cp = 2 / (d1 * dd), 2 / (d2 * dd)
+        c0 = -(cm + cp)
+        a = (cm[:, None, None] * p[:, :-2] + c0[:, None, None] * p[:, 1:-1] + cp[:, None, None] * p[:, 2:])
+        inv = 1.0 / self.cfg.accel_sigma ** 2
+        E = (a * a).sum((1, 2, 3)) * inv
+        if not grad:
+            return E
+        h = torch.zeros(T, dtype=DTYPE)
+        h[:-2] += cm ** 2
+        h[1:-1] += c0 ** 2
+        h[2:] += cp ** 2
+        gj = torch.zeros_like(p)
+        gj[:, :-2] -= cm[:, None, None] * a
+        gj[:, 1:-1] -= c0[:, None, None] * a
+        gj[:, 2:] -= cp[:, None, None] * a
+        return E, (h * inv).expand(P, T), gj * inv
+
+    def energy(self, st: State, gamma: float, fwd_out: list | None = None) -> torch.Tensor:
         f = self.kin.forward(st.betas, st.rot, st.transl)
+        if fwd_out is not None:
+            fwd_out.append(f)
         return self.data_terms(f["v"], gamma, jac=False) + self.prior_terms(st.rot)
 
     # ---- normal equations ------------------------------------------------------------------
-    def normal_equations(self, f: dict, H: torch.Tensor, g: torch.Tensor):
-        """Normal matrices (B, n, n), right-hand sides (B, n) [and the shape blocks], float64."""
+    def normal_equations(self, f: dict, H: torch.Tensor, g: torch.Tensor, want_b: bool = False,
+                         temporal: tuple | None = None):
+        """Normal matrices (B, n, n), right-hand sides (B, n) [and the shape blocks], float64.
+        ``temporal`` = (h (P, T), g_joints (P, T, 55, 3)) adds the joints as weighted points."""
         P, T = H.shape[:2]
         B = P * T
         n = self.n
         N = torch.zeros(B, n * n, dtype=CDTYPE)
         rhs = torch.zeros(B, n, dtype=CDTYPE)
-        want_b = self.cfg.optimize_betas
         nb = self.kin.shapedirs.shape[-1]
         Mb = torch.zeros(B, n, nb, dtype=CDTYPE) if want_b else None
         u = f["u"]
         for gr in self.groups:
             ng = len(gr.lm)
             Jf = self.kin.group_jacobian(gr, u)  # (B, 3 n_g, c_g)
-            Hg = H[:, :, gr.lm].reshape(B * ng, 3, 3)
-            HJ = (Hg @ Jf.reshape(B * ng, 3, -1)).reshape(B, 3 * ng, -1)
+            Hg = H[:, :, gr.lm].reshape(B, ng, 3, 3, 1)
+            Jl = Jf.view(B, ng, 3, -1)
+            HJ = (Hg[:, :, :, 0] * Jl[:, :, 0:1] + Hg[:, :, :, 1] * Jl[:, :, 1:2]
+                  + Hg[:, :, :, 2] * Jl[:, :, 2:3]).reshape(B, 3 * ng, -1)
             JT = Jf.transpose(1, 2)
             N.index_add_(1, gr.nflat, (JT @ HJ).reshape(B, -1))
             rhs[:, gr.cols] += (JT @ g[:, :, gr.lm].reshape(B, 3 * ng, 1))[..., 0]
             if want_b:
                 Jb = f["Jb"][:, :, gr.lm].reshape(B, 3 * ng, nb)
                 Mb[:, gr.cols] += HJ.transpose(1, 2) @ Jb
+        if temporal is not None:
+            h, gj = temporal
+            jg = self.kin.joint_group(self.cfg.active)
+            Jj = self.kin.group_jacobian(jg, f["u_joints"])  # (B, 165, c)
+            JT = Jj.transpose(1, 2)
+            N.index_add_(1, jg.nflat, ((JT @ Jj) * h.reshape(B, 1, 1).to(CDTYPE)).reshape(B, -1))
+            rhs[:, jg.cols] += (JT @ gj.reshape(B, -1, 1).to(CDTYPE))[..., 0]
         out = {"N": N.view(B, n, n).to(DTYPE), "rhs": rhs.to(DTYPE)}
         if want_b:
             Jb = f["Jb"]
-            HJb = (H.reshape(-1, 3, 3) @ Jb.reshape(-1, 3, nb)).reshape(P, -1, nb)
+            H5 = H.unsqueeze(-1)
+            HJb = (H5[..., 0, :] * Jb[..., 0:1, :] + H5[..., 1, :] * Jb[..., 1:2, :]
+                   + H5[..., 2, :] * Jb[..., 2:3, :]).reshape(P, -1, nb)
             Jb = Jb.reshape(P, -1, nb)
             out["Nbb"] = (Jb.transpose(1, 2) @ HJb).to(DTYPE)
             out["gb"] = (Jb.transpose(1, 2) @ g.reshape(P, -1, 1))[..., 0].to(DTYPE)
@@ -186,13 +243,19 @@ class GaussNewton:
         E_cur = None
         nb = self.kin.shapedirs.shape[-1]
         par = np.asarray(self.kin.parents)[self.act.numpy()]
+        temporal = self.times is not None
         for k in range(cfg.iterations):
             gamma = cfg.gamma(k)
-            f = self.kin.forward(st.betas, st.rot, st.transl, jac=True, shape_jac=cfg.optimize_betas)
+            opt_b = cfg.optimize_betas and k < cfg.betas_iterations
+            f = self.kin.forward(st.betas, st.rot, st.transl, jac=True, shape_jac=opt_b)
             Ed, H, g = self.data_terms(f["v"], gamma, jac=True)
             Ep, Nd, rp = self.prior_terms(st.rot, f["G"])
             E_cur = Ed + Ep  # (P, T)
-            ne = self.normal_equations(f, H, g)
+            tt = None
+            if temporal:
+                Et_cur, h_t, g_t = self.temporal_terms(f["joints"], grad=True)
+                tt = (h_t, g_t)
+            ne = self.normal_equations(f, H, g, opt_b, tt)
             N, rhs = ne["N"], ne["rhs"]
             idx = (3 * torch.arange(A)[:, None] + torch.arange(3)).reshape(A, 3)
             Nv = N.view(B, n, n)
@@ -201,6 +264,17 @@ class GaussNewton:
                 for j in range(3):
                     Nv[:, idx[:, i], idx[:, j]] += Ndf[:, :, i, j]
             rhs[:, idx.reshape(-1)] += rp.reshape(B, -1)
+            extra = cfg.extra
+            Ec_cur = 0.0
+            if extra is not None:
+                extra.refresh(f, st.betas, st.transl)
+                Ec, Nc, rc = extra.evaluate(f, st.betas, st.transl, jac=True)
+                Ec_cur = float(Ec)
+                if Nc is not None:
+                    N = N + Nc.reshape(B, n, n)
+                    rhs = rhs + rc.reshape(B, n)
+            if report is not None and k == 0:
+                report.energies.append(float(E_cur.sum()) + (float(Et_cur.sum()) if temporal else 0.0) + Ec_cur)
             diag = torch.diagonal(N, dim1=1, dim2=2)
             self.last_diag = diag.reshape(P, T, n).clone()  # Gauss-Newton curvature, for preconditioning
             scale = diag.mean(1, keepdim=True).clamp(min=1e-9)
@@ -210,7 +284,7 @@ class GaussNewton:
             if bool(bad.any()):  # fall back to a heavily damped step where Cholesky failed
                 Nd_[bad] = N[bad] + torch.diag_embed(1e3 * diag[bad] + scale[bad])
                 Lc[bad] = torch.linalg.cholesky(Nd_[bad])
-            if cfg.optimize_betas:
+            if opt_b:
                 Mb = ne["Mb"]
                 Y = torch.cholesky_solve(torch.cat([rhs[..., None], Mb], -1), Lc)  # (B, n, 1 + nb)
                 Yg, YM = Y[..., 0], Y[..., 1:]
@@ -225,6 +299,10 @@ class GaussNewton:
                 dbeta = None
                 dx = torch.cholesky_solve(rhs[..., None], Lc)[..., 0]
             dx = dx.reshape(P, T, n)
+            if cfg.max_step is not None:  # trust region: shrink a block's step to the largest allowed move
+                rmax = dx[..., :3 * A].reshape(P, T, A, 3).norm(dim=-1).amax(-1) / cfg.max_step[0]
+                tmax = dx[..., 3 * A:].norm(dim=-1) / cfg.max_step[1]
+                dx = dx / torch.maximum(torch.maximum(rmax, tmax), torch.ones_like(rmax))[..., None]
             eps = dx[..., :3 * A].reshape(P, T, A, 3)
             cand = st.clone()
             Gall = torch.cat([f["G"].to(DTYPE), torch.eye(3, dtype=DTYPE).expand(P, T, 1, 3, 3)], 2)
@@ -234,8 +312,17 @@ class GaussNewton:
             cand.transl = st.transl + dx[..., 3 * A:]
             if dbeta is not None:
                 cand.betas = st.betas + dbeta
-            E_new = self.energy(cand, gamma)
+            jo: list = []
+            E_new = self.energy(cand, gamma, jo)
             acc = E_new <= E_cur  # (P, T)
+            if temporal:  # frames are coupled: accept or reject each person's step as a whole
+                Et_new = self.temporal_terms(jo[0]["joints"])
+                acc_p = (E_new.sum(1) + Et_new) <= (E_cur.sum(1) + Et_cur)
+                if extra is not None:  # contact couples the people too: everyone's step as a whole
+                    Ec_new = float(extra.evaluate(jo[0], cand.betas, cand.transl, jac=False))
+                    ok_all = float(E_new.sum() + Et_new.sum()) + Ec_new <= float(E_cur.sum() + Et_cur.sum()) + Ec_cur
+                    acc_p = torch.full((P,), bool(ok_all))
+                acc = acc_p[:, None].expand(P, T)
             if dbeta is not None:
                 tot_old = E_cur.sum(1) + cfg.shape_weight * (st.betas ** 2).sum(1)
                 tot_new = E_new.sum(1) + cfg.shape_weight * (cand.betas ** 2).sum(1)
@@ -248,8 +335,13 @@ class GaussNewton:
             accf = acc.reshape(-1)
             mu = torch.where(accf, (mu / 3).clamp(min=1e-7), mu * 4)
             E_after = torch.where(acc, E_new, E_cur)
+            tot_after = float(E_after.sum())
+            if temporal:
+                tot_after += float(torch.where(acc_p, Et_new, Et_cur).sum())
+                if extra is not None:
+                    tot_after += Ec_new if bool(acc_p.all()) else Ec_cur
             if report is not None:
-                report.energies.append(float(E_after.sum()))
+                report.energies.append(tot_after)
                 report.accepted.append(float(acc.float().mean()))
                 report.iterations += 1
             rel = ((E_cur - E_after) / E_cur.clamp(min=1e-12)).max()

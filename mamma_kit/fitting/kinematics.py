@@ -152,6 +152,10 @@ class BodyKinematics:
         self.coef_sum = self.coef.sum(-1)  # (N, M)
         self.part = np.asarray(model.vertex_part)[self.ids]
         self._groups: dict = {}
+        # joints as points: joint j moves with every strict ancestor's rotation (lever p_j - p_i)
+        anc = [np.flatnonzero(sub[:, j] & (np.arange(J) != j)) for j in range(J)]
+        Mj = max(len(a) for a in anc)
+        self.joint_infl = torch.as_tensor(np.array([np.r_[a, np.full(Mj - len(a), J)] for a in anc], np.int64))
         c = lambda a: None if a is None else a.to(CDTYPE)  # noqa: E731
         self.f32 = {k: c(getattr(self, k)) for k in ("v_template", "shapedirs", "posedirs", "skin_w", "W",
                                                      "J_template", "J_shapedirs", "coef", "coef_sum",
@@ -187,19 +191,23 @@ class BodyKinematics:
             v0 = v0[:, None]
         G, p = forward_kinematics(rot, Jr[:, None], self.parents)  # (P, T, 55, 3, 3), (P, T, 55, 3)
         tA = p - (G @ Jr[:, None].unsqueeze(-1)).squeeze(-1)  # translation of each joint transform
-        A = torch.cat([G, tA.unsqueeze(-1)], -1)  # (P, T, 55, 3, 4)
-        vh = torch.cat([v0, torch.ones_like(v0[..., :1])], -1)  # (P, T|1, N, 4)
-        x = torch.einsum("ptnkij,ptnj->ptnki", A[:, :, self.skin_idx], vh.expand(P, T, self.N, 4))
+        # x_lk = G_k v_l + tA_k for the K skinning joints of every vertex, as broadcast
+        # multiply-adds (a batched 3x3 product per vertex and slot is far slower on a CPU)
+        Gk = G[:, :, self.skin_idx]  # (P, T, N, K, 3, 3)
+        vv = v0.unsqueeze(-2)  # (P, T|1, N, 1, 3)
+        x = tA[:, :, self.skin_idx] + Gk[..., 0] * vv[..., 0:1] + Gk[..., 1] * vv[..., 1:2] + Gk[..., 2] * vv[..., 2:3]
         tr = transl.to(dtype)[:, :, None]
         v = (x * d["skin_w"][..., None]).sum(-2) + tr
-        out = {"v": v, "joints": p + tr, "G": G, "p": p}
+        out = {"v": v, "joints": p + tr, "G": G, "p": p, "tA": tA, "Jr": Jr}
         if jac:
             pz = torch.cat([p, torch.zeros_like(p[:, :, :1])], 2)  # dummy joint J -> zero
             u = torch.einsum("nmk,ptnkd->ptnmd", d["coef"], x) - d["coef_sum"][..., None] * pz[:, :, self.infl]
             out["u"] = u
+            out["u_joints"] = p.unsqueeze(-2) - pz[:, :, self.joint_infl]  # (P, T, 55, Mj, 3); dummy slots unused
         if shape_jac:
             Gt = torch.einsum("nk,ptkij->ptnij", d["W"], G)  # (P, T, N, 3, 3) blended rotation
-            Jb = Gt @ d["shapedirs"]  # (P, T, N, 3, B)
+            Sd = d["shapedirs"]  # (N, 3, B)
+            Jb = Gt[..., 0:1] * Sd[:, 0:1] + Gt[..., 1:2] * Sd[:, 1:2] + Gt[..., 2:3] * Sd[:, 2:3]  # (P, T, N, 3, B)
             SJ = d["J_shapedirs"]  # (55, 3, B)
             dSJ = SJ - torch.cat([torch.zeros_like(SJ[:1]), SJ[self.parents[1:]]], 0)
             Gpar = torch.cat([torch.eye(3, dtype=dtype).expand(P, T, 1, 3, 3), G[:, :, self.parents[1:]]], 2)
@@ -209,22 +217,51 @@ class BodyKinematics:
             out["Jb"] = Jb
         return out
 
+    def points(self, f: dict, betas: torch.Tensor, transl: torch.Tensor, pi: torch.Tensor, ti: torch.Tensor,
+               vi: torch.Tensor, jac: bool = False, dtype=CDTYPE) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Posed vertices for arbitrary entries (person pi, frame ti, vertex vi of this
+        kinematics' set), from a forward pass ``f`` (any vertex set) of the same poses:
+        (E, 3) positions [and lever arms (E, M, 3)]. No pose correctives (they only
+        matter for SMPL-X files and are left to the landmark terms)."""
+        d = self.f32 if dtype == CDTYPE else self.__dict__
+        b = betas.to(dtype)[pi]
+        v0 = d["v_template"][vi] + torch.einsum("edb,eb->ed", d["shapedirs"][vi], b)  # (E, 3)
+        idx = self.skin_idx[vi]  # (E, K)
+        G = f["G"][pi[:, None], ti[:, None], idx]  # (E, K, 3, 3)
+        x = (G * v0[:, None, None, :]).sum(-1) + f["tA"][pi[:, None], ti[:, None], idx]  # (E, K, 3)
+        v = (x * d["skin_w"][vi][..., None]).sum(1) + transl.to(dtype)[pi, ti]
+        if not jac:
+            return v, None
+        pz = torch.cat([f["p"], torch.zeros_like(f["p"][:, :, :1])], 2)
+        u = torch.einsum("emk,ekd->emd", d["coef"][vi], x) - d["coef_sum"][vi][..., None] * \
+            pz[pi[:, None], ti[:, None], self.infl[vi]]
+        return v, u
+
     # ---- Jacobian structure ------------------------------------------------------------
     def groups(self, active: tuple[int, ...]) -> tuple[list[Group], int]:
-        """Per-part groups for an active joint list; returns (groups, number of columns)."""
-        key = tuple(active)
-        if key in self._groups:
-            return self._groups[key]
+        """Per-part groups of the vertices for an active joint list; returns (groups, columns)."""
+        key = ("v", tuple(active))
+        if key not in self._groups:
+            self._groups[key] = self._build_groups(active, self.infl.numpy(), self.part)
+        return self._groups[key]
+
+    def joint_group(self, active: tuple[int, ...]) -> Group:
+        """All 55 joints as one group (the temporal term's points)."""
+        key = ("j", tuple(active))
+        if key not in self._groups:
+            self._groups[key] = self._build_groups(active, self.joint_infl.numpy(), np.zeros(self.J, np.int64))
+        return self._groups[key][0][0]
+
+    def _build_groups(self, active, infl: np.ndarray, parts: np.ndarray) -> tuple[list[Group], int]:
         act = np.asarray(active, np.int64)
         pos = np.full(self.J + 1, -1, np.int64)
         pos[act] = np.arange(len(act))
-        infl = self.infl.numpy()
         ncols = 3 * len(act) + 3
         rows = np.array([e[0] for e in _SKEW_NEG])
         colo = np.array([e[1] for e in _SKEW_NEG])
         groups = []
-        for part in np.unique(self.part):
-            lm = np.flatnonzero(self.part == part)
+        for part in np.unique(parts):
+            lm = np.flatnonzero(parts == part)
             sl = pos[infl[lm]]  # (n, M) active position or -1
             js = np.unique(sl[sl >= 0])
             local = np.full(len(act), -1, np.int64)
@@ -241,7 +278,6 @@ class BodyKinematics:
             groups.append(Group(torch.as_tensor(lm), torch.as_tensor(cols), torch.as_tensor(l_sel),
                                 torch.as_tensor(m_sel), torch.as_tensor(fpos.reshape(-1)),
                                 torch.as_tensor(tmpl.reshape(-1), dtype=CDTYPE), torch.as_tensor(nflat)))
-        self._groups[key] = (groups, ncols)
         return groups, ncols
 
     def group_jacobian(self, gr: Group, u: torch.Tensor) -> torch.Tensor:

@@ -31,7 +31,7 @@ from mamma_kit.core import log
 from mamma_kit.fitting import init as finit
 from mamma_kit.fitting.contact import ContactConfig, ContactModel, contact_weights
 from mamma_kit.fitting.data import FitData
-from mamma_kit.fitting.energies import PoseEnergy, ReprojectionEnergy, TemporalConfig, pose_dict
+from mamma_kit.fitting.energies import ReprojectionEnergy, pose_dict
 from mamma_kit.fitting.gauss_newton import DTYPE, GaussNewton, GNConfig, GNReport, Obs, State
 from mamma_kit.fitting.kinematics import BodyKinematics, so3_log
 from mamma_kit.fitting.projection import RigTensors
@@ -47,11 +47,11 @@ class FitConfig:
     overlap: int = 16  # frames shared by neighbouring chunks
     shape_frames: int = 40  # frames spread over a long sequence to estimate the shape first
     gamma: float = 4.0  # Geman-McClure scale in units of sigma
-    s1_iterations: int = 8
-    s2_iterations: int = 16
-    s3_iterations: int = 40
-    s4_iterations: int = 30
-    s4_refresh: int = 10  # L-BFGS steps between contact active-set refreshes
+    s1_iterations: int = 6
+    s2_iterations: int = 8
+    s2_shape_iterations: int = 6  # stage 2 iterations that also update the shape
+    s3_iterations: int = 6
+    s4_iterations: int = 4
     tau_px_4k: float = 10.0  # tau of the sigma rescaling, px at 3840 px image width (scaled with it)
     rescale_lo: float = 0.1
     accel_sigma: float = 30.0  # m/s^2
@@ -113,6 +113,7 @@ class ChunkResult:
     transl: np.ndarray  # (P, T, 3)
     observed: np.ndarray  # (P, T)
     stats: dict[str, StageStats]
+    snapshots: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # stage -> (pose, transl)
 
 
 class Fitter:
@@ -126,7 +127,8 @@ class Fitter:
         self.cams = RigTensors.from_rig(data.rig)
         self.active_all = tuple(int(j) for j in np.unique(self.kin.infl.numpy()) if j < sk.NUM_JOINTS)
         part_ids = [sk.PART_NAMES.index(p) for p in RIGID_S1_PARTS]
-        self.s1_weight = torch.as_tensor(np.isin(self.kin.part, part_ids), dtype=torch.float32)
+        self.s1_sel = np.flatnonzero(np.isin(self.kin.part, part_ids))  # stage 1 sees these landmarks only
+        self.kin_s1 = BodyKinematics(model, model.landmark_ids[self.s1_sel])
         w, h = data.rig[0].size
         self.tau = torch.as_tensor([self.cfg.tau_px_4k * max(c.size) / 3840.0 for c in data.rig], dtype=torch.float32)
 
@@ -149,14 +151,15 @@ class Fitter:
         st = State(torch.zeros(P, self.kin.shapedirs.shape[-1], dtype=DTYPE), rot, torch.as_tensor(tr))
         return st, {"procrustes_frames": float(ok.mean()), "triangulated": float((info > 0).mean()), "ok": ok}
 
-    def _yaw_starts(self, d: FitData, obs: Obs, st: State, ok: np.ndarray, gcfg: GNConfig, n: int = 4) -> State:
+    def _yaw_starts(self, obs: Obs, st: State, ok: np.ndarray, gcfg: GNConfig, n: int = 4) -> State:
         """Frames without a Procrustes orientation: stage 1 from ``n`` headings about the
         vertical, keeping per person and frame the one with the lowest energy."""
         from mamma_kit.fitting.kinematics import so3_exp
 
         frames = np.flatnonzero((~ok).any(0))
         sub = Obs(obs.xy[:, :, frames], obs.sigma[:, :, frames], obs.w[:, :, frames])
-        gn = GaussNewton(self.kin, self.cams, sub, GNConfig(**{**gcfg.__dict__, "iterations": max(4, gcfg.iterations // 2)}))
+        gn = GaussNewton(self.kin_s1, self.cams, sub,
+                         GNConfig(**{**gcfg.__dict__, "iterations": max(4, gcfg.iterations // 2)}))
         best_E, best = None, None
         base = State(st.betas, st.rot[:, frames].clone(), st.transl[:, frames].clone())
         for k in range(n):
@@ -190,11 +193,12 @@ class Fitter:
         s1 = stats.setdefault("stage1", StageStats("stage1"))
         with _Timer(s1):
             rep = GNReport()
-            gcfg = GNConfig(active=(0,), iterations=cfg.s1_iterations, landmark_weight=self.s1_weight,
-                            gamma_start=30.0, gamma_end=cfg.gamma)
+            gcfg = GNConfig(active=(0,), iterations=cfg.s1_iterations, gamma_start=30.0, gamma_end=cfg.gamma)
+            sel = torch.as_tensor(self.s1_sel)
+            obs1 = Obs(obs.xy[..., sel, :], obs.sigma[..., sel, :], obs.w[..., sel])
             if not info["ok"].all():
-                st = self._yaw_starts(d, obs, st, info["ok"], gcfg)
-            gn = GaussNewton(self.kin, self.cams, obs, gcfg)
+                st = self._yaw_starts(obs1, st, info["ok"], gcfg)
+            gn = GaussNewton(self.kin_s1, self.cams, obs1, gcfg)
             st, _ = gn.run(st, rep)
             s1.energy_start += rep.energies[0] if rep.energies else 0.0
             s1.energy_end += rep.energies[-1] if rep.energies else 0.0
@@ -206,7 +210,8 @@ class Fitter:
             rep = GNReport()
             gn = GaussNewton(self.kin, self.cams, obs, GNConfig(
                 active=self.active_all, iterations=cfg.s2_iterations, optimize_betas=betas is None,
-                prior_sigma=cfg.prior_sigma(), gamma_start=30.0, gamma_end=cfg.gamma))
+                betas_iterations=cfg.s2_shape_iterations, prior_sigma=cfg.prior_sigma(), gamma_start=30.0,
+                gamma_end=cfg.gamma))
             st, _ = gn.run(st, rep)
             self._curvature = gn.last_diag
             s2.energy_start += rep.energies[0] if rep.energies else 0.0
@@ -238,163 +243,115 @@ class Fitter:
         observed = self.observed(d)
         self.fill_unobserved(pose, transl, observed)
         betas_out = st.betas.numpy().copy()
+        snaps = {f"stage{min(stages, 2)}": (pose.copy(), transl.copy())}
         if stages >= 3 and d.shape[2] >= 3:
-            pose, transl = self.stage34(d, obs, pose, transl, betas_out, stats, stages)
-        return ChunkResult(betas_out, pose, transl, observed, stats)
+            pose, transl = self.stage34(d, obs, pose, transl, betas_out, stats, stages, snaps)
+        return ChunkResult(betas_out, pose, transl, observed, stats, snaps)
 
     # ---- stages 3 and 4 ----------------------------------------------------------------
-    def _lbfgs(self, leaves: list[torch.Tensor], closure_energy, iterations: int) -> tuple[float, float, int]:
-        opt = torch.optim.LBFGS(leaves, lr=1.0, max_iter=iterations, history_size=10,
-                                line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
-        count = [0]
-        first = [None]
-        last = [None]
-
-        def closure():
-            opt.zero_grad()
-            E = closure_energy()
-            E.backward()
-            for leaf in leaves:  # index_put's backward can hand a strided gradient; L-BFGS views it flat
-                if leaf.grad is not None and not leaf.grad.is_contiguous():
-                    leaf.grad = leaf.grad.contiguous()
-            count[0] += 1
-            val = float(E.detach())
-            if first[0] is None:
-                first[0] = val
-            last[0] = val
-            return E
-
-        opt.step(closure)
-        return first[0] or 0.0, last[0] or 0.0, count[0]
-
     def stage34(self, d: FitData, obs: Obs, pose: np.ndarray, transl: np.ndarray, betas: np.ndarray,
-                stats: dict, stages: int) -> tuple[np.ndarray, np.ndarray]:
+                stats: dict, stages: int, snaps: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.cfg
         act = np.asarray(self.active_all)
         betas_t = torch.as_tensor(betas, dtype=torch.float32)
         pose_fixed = torch.as_tensor(pose, dtype=torch.float32)
         s3 = stats.setdefault("stage3", StageStats("stage3"))
         with _Timer(s3):
-            # sigma rescaled by the reprojection evidence of stage 2
+            # sigma rescaled by the reprojection evidence of stage 2: where a landmark already
+            # agrees with the body better than tau, its sigma shrinks in proportion (down to lo)
             reproj0 = ReprojectionEnergy(self.cams, obs.xy, obs.sigma, obs.w, cfg.gamma)
             with torch.no_grad():
                 v0, _ = pose_restricted(self.model, pose_dict(pose_fixed, torch.as_tensor(transl, dtype=torch.float32),
                                                               betas_t))
                 e, _ = reproj0.pixel_errors(v0)
             scale = (e / self.tau.reshape(-1, 1, 1, 1)).clamp(cfg.rescale_lo, 1.0)
-            sigma3 = obs.sigma * scale[..., None]
-            reproj = ReprojectionEnergy(self.cams, obs.xy, sigma3, obs.w, cfg.gamma)
-            energy = PoseEnergy(self.model, reproj, d.frame_times, act, cfg.prior_sigma(),
-                                TemporalConfig(cfg.accel_sigma))
-            # L-BFGS on variables scaled by the square root of the Gauss-Newton curvature of
-            # stage 2 (one scale per joint, three for the translation): the unscaled problem
-            # spans ~6 orders of magnitude between the root and a fingertip
-            A = len(act)
-            cur = getattr(self, "_curvature", None)
-            if cur is not None and cur.shape[:2] == (d.shape[1], d.shape[2]):
-                hj = cur[..., :3 * A].reshape(*cur.shape[:2], A, 3).mean(-1, keepdim=True)
-                ht = cur[..., 3 * A:]
-            else:
-                hj = torch.ones(d.shape[1], d.shape[2], A, 1, dtype=DTYPE)
-                ht = torch.ones(d.shape[1], d.shape[2], 3, dtype=DTYPE)
-            sj = hj.clamp(min=1e-6 * float(hj.max())).sqrt().float()
-            stv = ht.clamp(min=1e-6 * float(ht.max())).sqrt().float()
-            yz = (torch.as_tensor(pose[:, :, act], dtype=torch.float32) * sj).requires_grad_(True)
-            yt = (torch.as_tensor(transl, dtype=torch.float32) * stv).requires_grad_(True)
-            self._scales = (sj, stv)
+            obs3 = Obs(obs.xy, obs.sigma * scale[..., None].to(obs.sigma.dtype), obs.w)
+            from mamma_kit.fitting.kinematics import so3_exp
 
-            def total():
-                terms, _, _ = energy.terms(yz / sj, pose_fixed, yt / stv, betas_t)
-                return sum(terms.values())
+            st = State(torch.as_tensor(betas, dtype=DTYPE), so3_exp(torch.as_tensor(pose, dtype=DTYPE)),
+                       torch.as_tensor(transl, dtype=DTYPE))
+            rep = GNReport()
+            gn = GaussNewton(self.kin, self.cams, obs3, GNConfig(
+                active=self.active_all, iterations=cfg.s3_iterations, prior_sigma=cfg.prior_sigma(),
+                gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
+                accel_sigma=cfg.accel_sigma, tol=1e-6))
+            st, _ = gn.run(st, rep)
+            self._curvature = gn.last_diag
+            pose = so3_log(st.rot).numpy()
+            transl = st.transl.numpy().copy()
+            s3.energy_start += rep.energies[0] if rep.energies else 0.0
+            s3.energy_end += rep.energies[-1] if rep.energies else 0.0
+            s3.iterations += rep.iterations
+            s3.extra["sigma_rescaled_frac"] = s3.extra.get("sigma_rescaled_frac", 0.0) + float(
+                ((scale < 1) & (obs.w > 0)).float().sum() / (obs.w > 0).float().sum().clamp(min=1))
+        pose_fixed = torch.as_tensor(pose, dtype=torch.float32)
+        if snaps is not None:
+            snaps["stage3"] = (pose.copy(), transl.copy())
+        if stages < 4 or (d.shape[1] < 2 and not cfg.floor):
+            return pose, transl
+        s4 = stats.setdefault("stage4", StageStats("stage4"))
+        with _Timer(s4):
+            st = self._stage4(d, obs3, st, s4)
+        pose = so3_log(st.rot).numpy()
+        transl = st.transl.numpy().copy()
+        if snaps is not None:
+            snaps["stage4"] = (pose.copy(), transl.copy())
+        return pose, transl
 
-            e0, e1, n = self._lbfgs([yz, yt], total, cfg.s3_iterations)
-            s3.energy_start += e0
-            s3.energy_end += e1
-            s3.iterations += n
-        if not (stages < 4 or d.shape[1] < 2 and not cfg.floor):
-            s4 = stats.setdefault("stage4", StageStats("stage4"))
-            with _Timer(s4):
-                self._stage4(d, energy, yz, yt, sj, stv, pose_fixed, betas_t, s4)
-        return self._merge(pose, yz.detach() / sj, act), (yt.detach() / stv).numpy()
+    def _stage4(self, d: FitData, obs3: Obs, st: State, s4: StageStats) -> State:
+        """Contact (contact.ContactTerms) on top of stage 3's energy, on the frames whose
+        people's boxes intersect, and optionally the floor (contact.FloorTerms); Gauss-Newton
+        with every person's step accepted together (contact couples them)."""
+        from mamma_kit.fitting.contact import ContactTerms, FloorTerms, Terms
 
-    @staticmethod
-    def _merge(pose: np.ndarray, z: torch.Tensor, act: np.ndarray) -> np.ndarray:
-        out = pose.copy()
-        out[:, :, act] = z.detach().numpy()
-        return out
-
-    def _stage4(self, d: FitData, energy: PoseEnergy, yz, yt, sj, stv, pose_fixed, betas_t, s4: StageStats) -> None:
         cfg = self.cfg
-        cm = ContactModel(self.model, cfg.contact)
-        act = energy.active
-        w_con = torch.as_tensor(contact_weights(d.contact, d.present, cfg.contact), dtype=torch.float32)
-        floor_w = None
+        C, P, T, L = d.shape
+        f = self.kin.forward(st.betas, st.rot, st.transl)
+        parts: list = []
+        ct = None
+        if P >= 2:
+            probe = ContactTerms(self.model, cfg.contact, np.arange(T), torch.zeros(P, T, L), self.active_all)
+            with torch.no_grad():
+                pv, _ = probe._all_points(f, st.betas, st.transl)
+            frames = np.flatnonzero(ContactModel.gate(pv[:, :, :probe.Np], margin=cfg.contact.margin))
+            s4.extra["contact_frames"] = s4.extra.get("contact_frames", 0) + int(len(frames))
+            if len(frames):
+                w_con = torch.as_tensor(contact_weights(d.contact, d.present, cfg.contact), dtype=torch.float32)
+                ct = ContactTerms(self.model, cfg.contact, frames, w_con, self.active_all)
+                parts.append(ct)
         if cfg.floor:
-            foot = np.isin(self.kin.part, [sk.PART_NAMES.index(p) for p in ("left_foot", "right_foot")])
+            foot = np.flatnonzero(np.isin(self.kin.part, [sk.PART_NAMES.index(p) for p in ("left_foot", "right_foot")]))
             n = d.present.sum(0)
             pf = (d.floor * d.present[..., None]).sum(0) / np.maximum(n, 1)[..., None]
-            floor_w = (torch.as_tensor(foot), torch.as_tensor(np.clip((pf - 0.2) / 0.4, 0, 1), dtype=torch.float32))
+            wf = torch.as_tensor(np.clip((pf - cfg.contact.p_lo) / cfg.contact.p_span, 0, 1), dtype=torch.float32)
+            parts.append(FloorTerms(self.kin, foot, wf, cfg.floor_sigma, self.active_all))
+        if not parts:
+            return st
+        rep = GNReport()
+        gn = GaussNewton(self.kin, self.cams, obs3, GNConfig(
+            active=self.active_all, iterations=cfg.s4_iterations, prior_sigma=cfg.prior_sigma(),
+            gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
+            accel_sigma=cfg.accel_sigma, tol=1e-6, extra=Terms(parts), mu0=0.1, max_step=(0.05, 0.01)))
+        if ct is not None:  # count the first refresh's penetrating points (GN's first iteration makes it)
+            _first = ct.refresh
 
-        def posed_proxy(frames):
-            pose = pose_fixed.clone()
-            pose[:, :, act] = yz / sj
-            prm = pose_dict(pose[:, frames], (yt / stv)[:, frames], betas_t)
-            v, _ = pose_restricted(self.model, prm, cm.proxy_ids)
-            return v
-
-        with torch.no_grad():
-            gate = cm.gate(posed_proxy(slice(None)), margin=cfg.contact.margin) if d.shape[1] >= 2 else \
-                np.zeros(d.shape[2], bool)
-        frames = torch.as_tensor(np.flatnonzero(gate))
-        s4.extra["contact_frames"] = s4.extra.get("contact_frames", 0) + int(len(frames))
-        if len(frames) == 0 and floor_w is None:
-            return
-        remaining = cfg.s4_iterations
-        first = None
-        last = None
-        while remaining > 0:
-            with torch.no_grad():
-                sets = []
-                if len(frames):
-                    pv = posed_proxy(frames)
-                    pose = pose_fixed.clone()
-                    pose[:, :, act] = yz / sj
-                    lm, _ = pose_restricted(self.model, pose_dict(pose[:, frames], (yt / stv)[:, frames], betas_t))
-                    sets = cm.refresh(pv, lm, w_con[:, frames])
-                if first is None and len(frames):
-                    c0 = cm.energy(sets, pv, lm)
-                    s4.extra["inside_points_start"] = s4.extra.get("inside_points_start", 0) + c0["inside_points"]
-
-            def total():
-                terms, v, _ = energy.terms(yz / sj, pose_fixed, yt / stv, betas_t)
-                E = sum(terms.values())
-                if len(frames):
-                    pv_g = posed_proxy(frames)
-                    c = cm.energy(sets, pv_g, v[:, frames])
-                    E = E + c["repulsion"] + c["contact"]
-                if floor_w is not None:
-                    foot, fw = floor_w
-                    zf = v[:, :, foot, 2]
-                    E = E + ((torch.relu(-zf) ** 2).sum(dtype=torch.float64)
-                             + (fw[:, :, foot] * zf ** 2).sum(dtype=torch.float64)) / cfg.floor_sigma ** 2
-                return E
-
-            n = min(cfg.s4_refresh, remaining)
-            e0, e1, k = self._lbfgs([yz, yt], total, n)
-            first = e0 if first is None else first
-            last = e1
-            s4.iterations += k
-            remaining -= n
-        s4.energy_start += first or 0.0
-        s4.energy_end += last or 0.0
-        if len(frames):
-            with torch.no_grad():
-                pv = posed_proxy(frames)
-                pose = pose_fixed.clone()
-                pose[:, :, act] = yz / sj
-                lm, _ = pose_restricted(self.model, pose_dict(pose[:, frames], (yt / stv)[:, frames], betas_t))
-                c1 = cm.energy(cm.refresh(pv, lm, w_con[:, frames]), pv, lm)
-            s4.extra["inside_points_end"] = s4.extra.get("inside_points_end", 0) + c1["inside_points"]
+            def refresh_and_count(*a, **k):
+                _first(*a, **k)
+                if "inside_points_start" not in s4.extra or ct._calls == 0:
+                    ct.evaluate(*a[:3], jac=False)
+                    s4.extra["inside_points_start"] = ct.stats["inside_points"]
+            ct.refresh = refresh_and_count
+        st, _ = gn.run(st, rep)
+        if ct is not None:
+            f = self.kin.forward(st.betas, st.rot, st.transl)
+            ct.refresh(f, st.betas, st.transl, force=True)
+            ct.evaluate(f, st.betas, st.transl, jac=False)
+            s4.extra["inside_points_end"] = s4.extra.get("inside_points_end", 0) + ct.stats["inside_points"]
+        s4.energy_start += rep.energies[0] if rep.energies else 0.0
+        s4.energy_end += rep.energies[-1] if rep.energies else 0.0
+        s4.iterations += rep.iterations
+        s4.extra["accepted_steps"] = s4.extra.get("accepted_steps", 0) + int(sum(a > 0 for a in rep.accepted))
+        return st
 
     # ---- whole sequence ---------------------------------------------------------------
     def plan_chunks(self, T: int) -> list[tuple[int, int]]:
@@ -419,6 +376,7 @@ class Fitter:
                 stats.setdefault("shape_" + k, StageStats("shape_" + k)).add(s)
         pose = np.zeros((P, T, sk.NUM_JOINTS, 3))
         transl = np.zeros((P, T, 3))
+        snaps: dict[str, list] = {}
         wsum = np.zeros(T)
         observed = np.zeros((P, T), bool)
         for ci, (s, e) in enumerate(log.track(chunks, "fit chunks")):
@@ -436,18 +394,23 @@ class Fitter:
                     w[-ov:] = np.linspace(1, 0, ov + 2)[1:-1]
             pose[:, s:e] += r.pose * w[None, :, None, None]
             transl[:, s:e] += r.transl * w[None, :, None]
+            for k, (sp, stl) in r.snapshots.items():
+                acc = snaps.setdefault(k, [np.zeros_like(pose), np.zeros_like(transl)])
+                acc[0][:, s:e] += sp * w[None, :, None, None]
+                acc[1][:, s:e] += stl * w[None, :, None]
             wsum[s:e] += w
             observed[:, s:e] |= r.observed
             for k, st in r.stats.items():
                 stats.setdefault(k, StageStats(k)).add(st)
         pose /= wsum[None, :, None, None]
         transl /= wsum[None, :, None]
+        snapshots = {k: (a[0] / wsum[None, :, None, None], a[1] / wsum[None, :, None]) for k, a in snaps.items()}
         with torch.no_grad():
             _, joints = pose_restricted(self.model, pose_dict(torch.as_tensor(pose, dtype=torch.float32),
                                                               torch.as_tensor(transl, dtype=torch.float32),
                                                               torch.as_tensor(betas, dtype=torch.float32)))
         return FitResult(d.person_ids, d.frame_times, d.fps, betas, pose, transl, joints.numpy().astype(np.float64),
-                         observed, stats, chunks)
+                         observed, stats, chunks, snapshots)
 
 
 @dataclass
@@ -462,16 +425,19 @@ class FitResult:
     observed: np.ndarray  # (P, T)
     stats: dict[str, StageStats]
     chunks: list[tuple[int, int]]
+    snapshots: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # after each stage
 
-    def params(self, p: int) -> dict[str, np.ndarray]:
-        """SMPL-X parameter dict of person index p (T frames)."""
+    def params(self, p: int, stage: str | None = None) -> dict[str, np.ndarray]:
+        """SMPL-X parameter dict of person index p (T frames); ``stage`` ("stage2", ...)
+        gives the parameters as they were after that stage."""
+        pose, transl = (self.pose, self.transl) if stage is None else self.snapshots[stage]
         out = {}
         off = 0
-        T = self.pose.shape[1]
+        T = pose.shape[1]
         for k, n in sk.POSE_PARAMS.items():
-            out[k] = self.pose[p, :, off // 3:(off + n) // 3].reshape(T, n)
+            out[k] = pose[p, :, off // 3:(off + n) // 3].reshape(T, n)
             off += n
-        out["transl"] = self.transl[p]
+        out["transl"] = transl[p]
         out["betas"] = self.betas[p]
         out["expression"] = np.zeros((T, sk.NUM_EXPRESSION))
         return out
