@@ -39,7 +39,8 @@ CASES = {
 
 def mk(*args: str) -> None:
     """Run a mamma-kit command in a child process (nice'd, like every long job here)."""
-    cmd = ["nice", "-n", "10", sys.executable, "-m", "mamma_kit.cli.app", *map(str, args)]
+    cmd = ["nice", "-n", "10", sys.executable, "-c", "import sys; from mamma_kit.cli.app import main; main(sys.argv[1:])",
+           *map(str, args)]
     subprocess.run(cmd, check=True)
 
 

@@ -45,6 +45,7 @@ class ContactConfig:
     deep: float = 0.02  # m: penetrations are looked for this deep below the other's surface
     hand_stride: int = 2  # every n-th hand vertex joins the repulsion points
     refresh_every: int = 2  # Gauss-Newton iterations between active-set refreshes
+    max_points: int = 150  # repulsion points per frame and pair (the deepest)
     k_vertices: int = 2
 
 
@@ -111,6 +112,9 @@ class ContactModel:
         self.faces = torch.as_tensor(proxy.faces)
         self.nb = torch.as_tensor(proxy.neighbours if proxy.neighbours is not None else edge_neighbours(proxy.faces))
         self.vf = torch.as_tensor(vertex_faces(proxy.faces, len(proxy.vertex_ids)))
+        hands = [sk.PART_NAMES.index(p) for p in ("left_hand", "right_hand")]
+        fpart = np.asarray(model.vertex_part)[proxy.vertex_ids[proxy.faces]]  # (F, 3)
+        self.fold_face = torch.as_tensor(np.where((fpart == hands[0]).any(1), 1, np.where((fpart == hands[1]).any(1), 2, 0)))
         lm_part = np.asarray(model.vertex_part)[model.landmark_ids]
         self.limb = torch.as_tensor(np.isin(lm_part, [sk.PART_NAMES.index(p) for p in LIMB_PARTS]))
 
@@ -159,15 +163,24 @@ class ContactModel:
         pn = torch.where(ise[:, None], nf[fidx, f] + nf[fidx, other], pn)
         sign = torch.where(((pts - qb) * pn).sum(-1) < 0, -1.0, 1.0)
         dist = dd[ar, best].sqrt()
-        # a posed, decimated proxy folds onto itself (curled fingers, armpits), where the
-        # pseudo-normal's sign can be wrong: confirm every "inside" and every point within
-        # 1 cm of the surface by the generalized winding number (robust to folds)
-        check = torch.nonzero((sign < 0) | (dist < 0.01)).flatten()
+        # a posed, decimated proxy folds onto itself at curled fingers, where the pseudo-normal's
+        # sign can be wrong: there, confirm every "inside" and every point within 1 cm of the
+        # surface by the generalized winding number (robust to folds; O(triangles) per point,
+        # so only where it is needed)
+        check = torch.nonzero((sign < 0) & (self.fold_face[f] > 0)).flatten()
         if len(check):
-            fc = fidx[check]
-            for g in torch.unique(fc).tolist():
-                sel = check[fc == g]
-                inside = winding_number(pts[sel], verts_b[g][self.faces], chunk=64) > 0.5
+            key = fidx[check] * 3 + self.fold_face[f[check]]  # per frame and hand
+            for kg in torch.unique(key).tolist():
+                g = kg // 3
+                sel = check[key == kg]
+                tris = verts_b[g][self.faces]
+                # the surface within 10 cm around the points: a hand and its wrist, whose open
+                # end subtends a small solid angle from the fingers, so the winding number of
+                # this patch decides inside / outside like the whole mesh's, at a tenth of the cost
+                c = pts[sel].mean(0)
+                rad = float((pts[sel] - c).norm(dim=-1).max()) + 0.10
+                near_f = (tris.mean(1) - c).norm(dim=-1) < rad
+                inside = winding_number(pts[sel], tris[near_f], chunk=256) > 0.5
                 sign[sel] = torch.where(inside, -1.0, 1.0)
         return f, sign, dist
 
@@ -217,6 +230,15 @@ class ContactModel:
                 face, sign, dist = self._closest(pts.float(), proxy_verts[b].float(), fr, nn)
                 keep = torch.where(is_lm, (dist < cfg.reach) & (sign > 0),  # pull only what is outside and near
                                    (sign < 0) | (dist < cfg.margin))
+                # where bodies overlap a lot, the deepest points per frame carry the repulsion
+                # (neighbouring points move together; caps the work per frame)
+                rep = keep & ~is_lm
+                depth = torch.where(rep, sign * dist, torch.full_like(dist, float("inf")))
+                for g in torch.unique(fr[rep]).tolist():
+                    sel = torch.nonzero(rep & (fr == g)).flatten()
+                    if len(sel) > cfg.max_points:
+                        drop = sel[torch.argsort(depth[sel])[cfg.max_points:]]
+                        keep[drop] = False
                 sets.append(ActiveSet(a, b, fr[keep], point[keep], is_lm[keep], face[keep], sign[keep], wt[keep]))
         return sets
 
@@ -293,12 +315,13 @@ class ContactTerms:
     def _all_points(self, f, betas, transl):
         """Posed collision points (P, G, Nc, 3) (proxy vertices first) and landmarks (P, G, L, 3)
         at the gated frames."""
-        P, G, U = betas.shape[0], len(self.frames), self.kin.N
-        pi = torch.arange(P).repeat_interleave(G * U)
-        ti = self.frames.repeat_interleave(U).repeat(P)
-        vi = torch.arange(U).repeat(P * G)
-        v, _ = self.kin.points(f, betas, transl, pi, ti, vi)
-        v = v.reshape(P, G, U, 3)
+        from mamma_kit.body.lbs import skin_shared_points
+
+        P, U = betas.shape[0], self.kin.N
+        _, v0 = self.kin.rest(betas, torch.float32)  # (P, U, 3)
+        A = torch.cat([f["G"], f["tA"].unsqueeze(-1)], -1)[:, self.frames]  # (P, G, 55, 3, 4)
+        # one GEMM per person over all its gated frames (body.lbs's shared-rest-points blend)
+        v = skin_shared_points(v0, A.flatten(-2), self.kin.f32["W"]) + transl.float()[:, self.frames, None]
         return v[:, :, :self.Nc], v[:, :, self.Nc:]
 
     @torch.no_grad()

@@ -59,6 +59,10 @@ class GNConfig:
     prior_sigma: np.ndarray | None = None  # (55,) rad; inf = no prior
     landmark_weight: torch.Tensor | None = None  # (L,) multiplies visibility (stage 1: rigid parts)
     tol: float = 1e-5
+    # past `iterations`, go on (at gamma_end) while some block's energy still falls by more
+    # than continue_tol per iteration, up to max_iterations (None: stop at `iterations`)
+    max_iterations: int | None = None
+    continue_tol: float = 1e-3
     mu0: float = 1e-3
     betas_iterations: int = 1000  # shape is optimised in the first iterations only
     temporal_times: np.ndarray | None = None  # (T,) frame times: adds the joint-acceleration term
@@ -244,7 +248,7 @@ class GaussNewton:
         nb = self.kin.shapedirs.shape[-1]
         par = np.asarray(self.kin.parents)[self.act.numpy()]
         temporal = self.times is not None
-        for k in range(cfg.iterations):
+        for k in range(max(cfg.iterations, cfg.max_iterations or 0)):
             gamma = cfg.gamma(k)
             opt_b = cfg.optimize_betas and k < cfg.betas_iterations
             f = self.kin.forward(st.betas, st.rot, st.transl, jac=True, shape_jac=opt_b)
@@ -346,5 +350,7 @@ class GaussNewton:
                 report.iterations += 1
             rel = ((E_cur - E_after) / E_cur.clamp(min=1e-12)).max()
             if k >= cfg.iterations * 0.6 and float(rel) < cfg.tol:
+                break
+            if k + 1 >= cfg.iterations and float(rel) < cfg.continue_tol:
                 break
         return st, E_cur

@@ -4,14 +4,20 @@ Per chunk (all its frames and people at once):
 
   init  body centres from rays, robust triangulation, Procrustes of the torso landmarks
   S1    global rotation + translation per person and frame (LM on the reprojection energy of
-        the rigid torso/head landmarks)
+        the rigid torso/head landmarks; several headings where Procrustes had too little)
   S2    pose, shape and translation (LM, robust reprojection / sigma weighted by visibility,
-        L2 shape prior, light pose prior; the shape shared by all frames via its Schur complement)
+        L2 shape prior, light pose prior on the fingers; the shape is shared by all frames
+        through its Schur complement)
   S3    sigma' = sigma * clamp(e / tau, lo, 1) from the S2 reprojection errors e (tau tied to
-        the image resolution) and a joint-acceleration penalty; torch L-BFGS over the chunk
+        the image resolution) and a joint-acceleration penalty (LM, the neighbouring frames
+        block-Jacobi, each person's step accepted on its whole energy)
   S4    contact: view-averaged contact probabilities pull limb landmarks onto the other body,
-        repulsion pushes vertices out of it beyond a few mm (contact.py); L-BFGS again
+        repulsion pushes points out of it beyond a few mm (contact.py); LM with all people's
+        steps accepted together
 
+Every stage is Levenberg-Marquardt on the block-sparse problem (gauss_newton.py) rather than
+the paper's L-BFGS: on a CPU it needs a few iterations where L-BFGS needs hundreds of
+evaluations (FACTS.md: the official schedule would take ~10 minutes per 100 frames here).
 Long sequences run in overlapping chunks with one shape per person (estimated first on
 frames spread over the whole sequence) and are cross-faded where chunks overlap.
 """
@@ -129,7 +135,6 @@ class Fitter:
         part_ids = [sk.PART_NAMES.index(p) for p in RIGID_S1_PARTS]
         self.s1_sel = np.flatnonzero(np.isin(self.kin.part, part_ids))  # stage 1 sees these landmarks only
         self.kin_s1 = BodyKinematics(model, model.landmark_ids[self.s1_sel])
-        w, h = data.rig[0].size
         self.tau = torch.as_tensor([self.cfg.tau_px_4k * max(c.size) / 3840.0 for c in data.rig], dtype=torch.float32)
 
     # ---- one chunk --------------------------------------------------------------------
@@ -209,11 +214,11 @@ class Fitter:
         with _Timer(s2):
             rep = GNReport()
             gn = GaussNewton(self.kin, self.cams, obs, GNConfig(
-                active=self.active_all, iterations=cfg.s2_iterations, optimize_betas=betas is None,
+                active=self.active_all, iterations=cfg.s2_iterations, max_iterations=2 * cfg.s2_iterations,
+                optimize_betas=betas is None,
                 betas_iterations=cfg.s2_shape_iterations, prior_sigma=cfg.prior_sigma(), gamma_start=30.0,
                 gamma_end=cfg.gamma))
             st, _ = gn.run(st, rep)
-            self._curvature = gn.last_diag
             s2.energy_start += rep.energies[0] if rep.energies else 0.0
             s2.energy_end += rep.energies[-1] if rep.energies else 0.0
             s2.iterations += rep.iterations
@@ -276,7 +281,6 @@ class Fitter:
                 gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
                 accel_sigma=cfg.accel_sigma, tol=1e-6))
             st, _ = gn.run(st, rep)
-            self._curvature = gn.last_diag
             pose = so3_log(st.rot).numpy()
             transl = st.transl.numpy().copy()
             s3.energy_start += rep.energies[0] if rep.energies else 0.0

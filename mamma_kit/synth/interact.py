@@ -55,11 +55,15 @@ def _anchor_vertices(body, part: str) -> np.ndarray:
 
 
 def fit_floor_and_contacts(body, clip, grounds: list[str], iters: int = 60) -> dict:
-    """Adjust ``clip.params`` in place; returns diagnostics (final palm distance errors)."""
+    """Adjust ``clip.params`` in place; returns diagnostics (final palm distance errors).
+    Lying/sitting people ("lowest" ground) are placed before IK as well; arm IK could in
+    principle lower a hand below their lowest point, which floor poses do not combine with."""
     diag = {}
+    # feet first: arm IK leaves the feet where they are, so contacts made at the final
+    # heights stay made (people of different heights are lifted by different amounts)
+    _place_on_floor(body, clip, grounds)
     if clip.contacts:
         diag["contact_error_m"] = _solve_contacts(body, clip, iters)
-    _place_on_floor(body, clip, grounds)
     return diag
 
 
@@ -79,14 +83,37 @@ def _place_on_floor(body, clip, grounds: list[str]) -> None:
         clip.params["transl"][p, :, 2] = -low + lift
 
 
+IK_RATE = 15.0  # Hz: arm corrections are solved at this rate and interpolated in between
+
+
 def _solve_contacts(body, clip, iters: int) -> float:
+    """Arm IK on a subsampled clip (IK_RATE), corrections interpolated to every sample."""
+    times_all = clip.times
+    dt = float(np.median(np.diff(times_all))) if len(times_all) > 1 else 1.0
+    step = max(1, int(round(1.0 / (IK_RATE * dt))))
+    keep = np.unique(np.r_[np.arange(0, len(times_all), step), len(times_all) - 1])
+    if len(keep) == len(times_all):
+        return _solve_contacts_dense(body, clip, iters)
+    sub = type(clip)(times_all[keep], clip.betas, {k: v[:, keep].copy() for k, v in clip.params.items()},
+                     clip.kind, [c | {"weight": np.asarray(c["weight"])[keep]} for c in clip.contacts])
+    before = sub.params["body_pose"].copy()
+    err = _solve_contacts_dense(body, sub, iters)
+    delta = sub.params["body_pose"] - before  # (P, K, 63)
+    for p in range(delta.shape[0]):
+        for d in range(63):
+            if np.any(delta[p, :, d]):
+                clip.params["body_pose"][p, :, d] += np.interp(times_all, times_all[keep], delta[p, :, d])
+    return err
+
+
+def _solve_contacts_dense(body, clip, iters: int) -> float:
     from mamma_kit.body.lbs import pose_restricted
 
     P, N = clip.params["transl"].shape[:2]
     palms = {s: _palm_vertices(body, s) for s in ("left", "right")}
     anchors = {part: _anchor_vertices(body, part) for part in ("chest", "back")}
-    ids = np.unique(np.concatenate([palms["left"], palms["right"], anchors["chest"], anchors["back"]]))
-    pos_of = {int(v): i for i, v in enumerate(ids)}
+    all_ids = np.unique(np.concatenate([palms["left"], palms["right"], anchors["chest"], anchors["back"]]))
+    pos_of = {int(v): i for i, v in enumerate(all_ids)}
     col = lambda arr: torch.tensor([pos_of[int(v)] for v in arr])  # noqa: E731
 
     dt = torch.float32
@@ -105,9 +132,8 @@ def _solve_contacts(body, clip, iters: int) -> float:
         prm = dict(base)
         prm["body_pose"] = base["body_pose"] + (delta * mask).reshape(P, N, 63)
         prm["betas"] = betas
-        prm["transl"] = torch.cat([base["transl"][..., :2], torch.zeros(P, N, 1)], -1)
-        v, _ = pose_restricted(body, prm, ids)
-        return v  # (P, N, len(ids), 3)
+        v, _ = pose_restricted(body, prm, all_ids)
+        return v  # (P, N, len(all_ids), 3)
 
     def normals_out(v, part_ids, person):
         # outward direction at an anchor: away from the partner's pelvis axis, horizontal

@@ -424,7 +424,8 @@ def couple_motion(kind: str, t: np.ndarray, rng: np.random.Generator, centre: np
     contacts: list[dict] = []
     ones = np.ones(N)
     if kind == "couple-dance":
-        dist = 0.75 + 0.08 * np.sin(2 * np.pi * 0.25 * t)
+        # far enough that stepping feet never meet, close enough for joined hands
+        dist = 0.9 + 0.06 * np.sin(2 * np.pi * 0.25 * t)
         spin = rng.choice([-1, 1]) * 0.6 * t + rng.uniform(0, 2 * np.pi)
         axis = facing(spin)
         xy_a = centre + 0.5 * dist[:, None] * axis
