@@ -58,6 +58,14 @@ def detections(rig: Rig, spec: BoardSpec, traj, clocks: dict, fps=8.0, noise=0.0
     return out
 
 
+def assert_lens_within(true: Camera, est: Camera, det: Detections, res, p95: float, worst: float) -> None:
+    seen = det.xy_fn2[res.views].reshape(-1, 2)
+    _, diff = projection_difference(true, est, region_xy=seen[np.isfinite(seen[:, 0])])
+    d = diff[np.isfinite(diff)]
+    assert len(d) > 0.6 * len(diff), len(d) / len(diff)
+    assert np.percentile(d, 95) < p95 and d.max() < worst, (np.percentile(d, 95), d.max())
+
+
 @pytest.mark.parametrize("model", ["radtan", "rational", "fisheye"])
 def test_intrinsics_recover_every_lens_model(model):
     rig = ring(model, n=1)
@@ -69,11 +77,10 @@ def test_intrinsics_recover_every_lens_model(model):
     est = res.camera
     assert abs(est.K[0, 0] / true.K[0, 0] - 1) < 0.002
     assert np.linalg.norm(est.K[:2, 2] - true.K[:2, 2]) < 1.5
-    # the whole lens: rays mapped within a fraction of a pixel wherever the board was seen
-    seen = det.xy_fn2[res.views].reshape(-1, 2)
-    _, diff = projection_difference(true, est, region_xy=seen[np.isfinite(seen[:, 0])])
-    d = diff[np.isfinite(diff)]
-    assert len(d) > 0.6 * len(diff) and np.percentile(d, 95) < 0.2 and d.max() < 0.4
+    # the whole lens: rays mapped within a fraction of a pixel wherever the board was seen.
+    # The bound is statistical: with 0.08 px corner noise and 40 views, the 95th percentile
+    # ranged 0.05-0.22 px over 8 noise seeds for every model (radtan worst), so 0.3 px
+    assert_lens_within(true, est, det, res, p95=0.3, worst=0.45)
     assert res.std["fx"] > 0 and res.rms_px < 0.15
 
 

@@ -39,21 +39,26 @@ def so3_exp(w: torch.Tensor) -> torch.Tensor:
 
 
 def so3_log(R: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (..., 3, 3) -> axis-angle (..., 3), stable near 0 and pi."""
+    """Rotation matrices (..., 3, 3) -> axis-angle (..., 3), stable near 0 and pi.
+
+    The angle comes from atan2(|vee| / 2, (tr - 1) / 2), accurate everywhere (arccos is
+    not near 0 and pi). Near pi, vee = 2 sin(th) a vanishes, so the axis is read from the
+    symmetric part: (R + R^T) / 2 = cos(th) I + (1 - cos(th)) a a^T, its sign from vee."""
     tr = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
-    cos = ((tr - 1) / 2).clamp(-1.0, 1.0)
-    th = torch.arccos(cos)
     vee = torch.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-    sin = torch.sin(th)
+    sin = vee.norm(dim=-1) / 2
+    cos = (tr - 1) / 2
+    th = torch.atan2(sin, cos)
     small = th < 1e-4
     fac = torch.where(small, 0.5 + th * th / 12, th / (2 * torch.where(small, torch.ones_like(sin), sin)))
     w = vee * fac.unsqueeze(-1)
-    near_pi = th > np.pi - 1e-3
-    if bool(near_pi.any()):  # axis from the diagonal of (R + I) / 2 = a a^T
-        B = (R[near_pi] + torch.eye(3, dtype=R.dtype)) / 2
-        diag = torch.diagonal(B, dim1=-2, dim2=-1).clamp(min=0)
-        i = diag.argmax(-1)
-        col = B[torch.arange(len(i)), :, i]
+    near_pi = th > np.pi - 1e-2
+    if bool(near_pi.any()):
+        Rn, cn = R[near_pi], cos[near_pi]
+        aa = ((Rn + Rn.transpose(-1, -2)) / 2 - cn[:, None, None] * torch.eye(3, dtype=R.dtype)) \
+            / (1 - cn)[:, None, None]
+        i = torch.diagonal(aa, dim1=-2, dim2=-1).argmax(-1)
+        col = aa[torch.arange(len(i)), :, i]
         a = col / col.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         s = torch.sign((a * vee[near_pi]).sum(-1))
         s = torch.where(s == 0, torch.ones_like(s), s)

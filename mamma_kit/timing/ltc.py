@@ -81,6 +81,19 @@ def _transitions(x: np.ndarray, hyst: float) -> np.ndarray:
     return z + x0 / (x0 - x1)
 
 
+def _bit_period(d: np.ndarray, lo: float, hi: float) -> float:
+    """The bit period T in [lo, hi] that puts the intervals d nearest to T or T/2.
+
+    A grid search, then a finer one around the best: the median of d can fall between the
+    two modes (about as many halves as wholes), so it is no estimate of either."""
+    best = 0.5 * (lo + hi)
+    for span, n in ((None, 200), (0.02, 41)):
+        c = np.linspace(lo, hi, n) if span is None else best * np.linspace(1 - span, 1 + span, n)
+        cost = np.minimum(np.abs(d[None] - c[:, None]), np.abs(d[None] - c[:, None] / 2)).sum(1) / c
+        best = float(c[int(np.argmin(cost))])
+    return best
+
+
 def decode_ltc(x: np.ndarray, sr: int, fps_hint: float | None = None) -> LtcFrames:
     """Decode every LTC frame in a mono signal (see the module docstring)."""
     x = np.asarray(x, np.float64)
@@ -99,10 +112,7 @@ def decode_ltc(x: np.ndarray, sr: int, fps_hint: float | None = None) -> LtcFram
     plaus = d[(d > 0.4 * lo_T) & (d < 1.3 * hi_T)]
     if len(plaus) < 100:
         return empty
-    m = float(np.median(plaus))
-    cands = [c for c in (m, 2 * m) if 0.8 * lo_T <= c <= 1.2 * hi_T] or [m]
-    cost = [np.sum(np.minimum(np.abs(plaus - c), np.abs(plaus - c / 2))) / c for c in cands]
-    T = cands[int(np.argmin(cost))]
+    T = _bit_period(plaus[:: max(1, len(plaus) // 4000)], 0.8 * lo_T, 1.2 * hi_T)
     Tloc = np.full(len(d), T)
     for _ in range(3):
         u = d / Tloc
