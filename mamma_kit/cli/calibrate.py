@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import List, Optional
 
@@ -40,109 +39,44 @@ def calibrate_cmd(
     quiet: bool = QuietOpt,
 ) -> None:
     """Calibrate a rig from ChArUco board videos: intrinsics, extrinsics, world frame, diagnostics."""
-    from mamma_kit.calibration.board import load_board_spec
-    from mamma_kit.calibration.solve import Settings, calibrate, summary, write_outputs
-    from mamma_kit.core.clock import ClockModel
-    from mamma_kit.core.manifest import StageManifest, producer
+    from mamma_kit.calibration.stage import calibrate_videos, run_calibrate, settings_from
 
     setup(quiet, json_out)
-    if model not in ("radtan", "rational", "fisheye"):
-        raise UserError(f"unknown lens model '{model}'", "use --model radtan, rational or fisheye")
-    ws = None
+    settings = settings_from(model, detect_fps, max_views, floor=not no_floor)
     if len(targets) == 1 and targets[0].is_dir():
         from mamma_kit.core.workspace import Workspace
 
         ws = Workspace(targets[0])
-        cap = ws.load_capture()
-        videos = {n: e.board_video for n, e in cap.cameras.items() if e.board_video is not None}
-        if not videos:
-            raise UserError("capture.toml names no board videos", "add board_video = \"board/NAME.mp4\" to each "
-                            "[cameras.NAME], or pass the board videos themselves")
-        missing = [n for n in cap.cameras if n not in videos]
-        if missing:
-            raise UserError(f"capture.toml has no board_video for {', '.join(missing)}",
-                            "add board_video to those cameras or leave them out of capture.toml")
-        spec_src = board or (str(cap.board_spec) if cap.board_spec else None)
-        if spec_src is None:
-            raise UserError("no board spec: capture.toml has no [board] spec", "pass --board SPEC or add "
-                            "[board] spec = \"charuco.toml\" to capture.toml")
-        out = out or ws.calibration
-        report = report or ws.report_dir / "calibration"
+        if out is not None or report is not None:
+            raise UserError("--out/--report are for board video files",
+                            "a workspace always writes WORKSPACE/calibration.toml and report/calibration/")
+        res = run_calibrate(ws, board=board, settings=settings, intrinsics=intrinsics, timing=timing, synced=synced,
+                            figures=not no_figures, force=force, progress=not quiet)
     else:
+        videos = {}
         for p in targets:
             if p.is_dir():
                 raise UserError(f"{p} is a folder", "pass one workspace folder alone, or board video files")
-        videos = {}
-        for p in targets:
             if p.stem in videos:
                 raise UserError(f"two board videos are named {p.stem}", "camera names come from the file names: "
                                 "rename them (e.g. cam0.mp4, cam1.mp4)")
             videos[p.stem] = p
         if board is None:
             raise UserError("no board spec given", "pass --board SPEC (e.g. --board calib/charuco-a1.toml)")
-        spec_src = board
         out = out or Path("calibration.toml")
         report = report or out.with_name(out.stem + "-report")
-    for n, p in videos.items():
-        if not Path(p).is_file():
-            raise UserError(f"board video of {n} not found: {p}", "check the path")
-    spec = load_board_spec(spec_src)
-    settings = Settings(model=model, max_fps=detect_fps, max_views=max_views, floor=not no_floor)
-    rig_intr = None
-    if intrinsics is not None:
-        from mamma_kit.calibration.formats import read_rig
-
-        rig_intr = read_rig(intrinsics)
-    clocks = None
-    if timing is not None:
-        from mamma_kit.core.timingfile import read_timing
-
-        clocks, _ = read_timing(timing)
-    elif synced:
-        clocks = {n: ClockModel(source="synced") for n in videos}
-    inputs = [Path(p) for p in videos.values()] + [Path(spec_src) if Path(spec_src).is_file() else Path()]
-    inputs += [p for p in (intrinsics, timing) if p is not None]
-    inputs = [p for p in inputs if str(p) not in ("", ".")]
-    run_settings = {**settings.to_dict(), "spec": spec.to_dict(), "synced": synced, "figures": not no_figures}
-    manifest = StageManifest(ws.cache_dir, "calibrate", ws.root) if ws is not None else None
-    if manifest is not None and not force and out == ws.calibration:
-        state = manifest.check(inputs, run_settings)
-        if state.fresh:
-            from mamma_kit.core.calibfile import read_calibration
-
-            log.info(f"calibration is up to date ({state.reason}); use --force to recalibrate")
-            if json_out:
-                rig, diag = read_calibration(out)
-                emit_json({"rms_px": diag["rig"].get("rms_px"), "skipped": True, "output": str(out),
-                           "cameras": {n: {"rms_px": d.get("rms_px")} for n, d in diag["cameras"].items()}})
-            return
-    t0 = time.perf_counter()
-    result = calibrate({n: Path(p) for n, p in videos.items()}, spec, settings, intrinsics=rig_intr,
-                       intrinsics_src=str(intrinsics), clocks=clocks, progress=not quiet,
-                       cache_dir=ws.cache_dir / "board-detections" if ws is not None else None)
-    if manifest is not None:
-        hashes = {str(p): manifest.hasher(p) for p in inputs}
-        manifest.hasher.save()
-    else:
-        from mamma_kit.core.io import sha256_file
-
-        hashes = {str(p): sha256_file(p) for p in inputs}
-    prod = producer("calibrate " + " ".join(str(t) for t in targets), hashes)
-    figures = write_outputs(result, out, spec, None if no_figures else report, prod)
-    if manifest is not None and out == ws.calibration:
-        manifest.record(inputs, run_settings, [out], {"rms_px": result.diagnostics["rms_px"]},
-                        time.perf_counter() - t0)
+        res = calibrate_videos(videos, board, out, settings, report_dir=None if no_figures else report,
+                               intrinsics=intrinsics, timing=timing, synced=synced, progress=not quiet,
+                               command="calibrate " + " ".join(str(t) for t in targets))
     if json_out:
-        emit_json(summary(result, out, figures))
-    else:
-        d = result.diagnostics
-        log.info(f"{out}: {len(result.rig)} cameras, bundle-adjusted rms {d['rms_px']:.3f} px over "
-                 f"{d['events']['total']} board poses ({d['events']['shared']} shared); world from "
-                 f"{d['world']['source']}")
-        for c in result.rig:
-            cd = result.camera_diagnostics[c.name]
-            cv = cd.get("cross_validation_px", {}).get("median_px")
-            log.info(f"  {c.name}: rms {cd['rms_px']:.3f} px, fx {c.K[0, 0]:.1f} px, {cd['views']} views "
+        emit_json(res)
+    elif not res.get("skipped"):
+        log.info(f"{res['output']}: {len(res['cameras'])} cameras, bundle-adjusted rms {res['rms_px']:.3f} px over "
+                 f"{res['events']['total']} board poses ({res['events']['shared']} shared); world from "
+                 f"{res['world']['source']}")
+        for n, cd in res["cameras"].items():
+            cv = (cd.get("cross_validation_px") or {}).get("median_px")
+            log.info(f"  {n}: rms {cd['rms_px']:.3f} px, fx {cd['fx']:.1f} px, {cd['views']} views "
                      f"({cd['shared_views']} shared)" + (f", cross-validation {cv:.2f} px" if cv is not None else ""))
-        if figures:
-            log.info(f"figures: {Path(figures[0]).parent}")
+        if res.get("figures"):
+            log.info(f"figures: {Path(res['figures'][0]).parent}")

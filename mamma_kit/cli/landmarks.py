@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Optional
 
@@ -12,24 +11,6 @@ from mamma_kit.cli.app import app
 from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
-
-
-def _cameras(ws, only: Optional[str], fallback_dir: Path | None = None) -> list[str]:
-    if ws.capture_toml.is_file():
-        names = ws.load_capture().camera_names
-    elif fallback_dir is not None and fallback_dir.is_dir():
-        names = sorted(p.stem for p in fallback_dir.glob("*.npz"))
-    else:
-        names = []
-    if only:
-        want = [c.strip() for c in only.split(",") if c.strip()]
-        bad = [c for c in want if c not in names]
-        if bad:
-            raise UserError(f"unknown camera(s) {', '.join(bad)}", f"cameras in this workspace: {', '.join(names)}")
-        names = want
-    if not names:
-        raise UserError(f"{ws.root} lists no cameras", "check capture.toml")
-    return names
 
 
 @app.command("landmarks")
@@ -78,8 +59,8 @@ def landmarks_cmd(
         import torch
 
         torch.set_num_threads(threads)
-    from mamma_kit.core.manifest import StageManifest, producer
     from mamma_kit.core.workspace import Workspace
+    from mamma_kit.landmarks.stage import run_landmarks
 
     loaded = None
     if source == "net":  # load (and validate) the weights first: a bad --weights is the first thing to report
@@ -88,55 +69,7 @@ def landmarks_cmd(
         loaded = load_model(weights, arch, device)
     if workspace is None:
         raise UserError("no WORKSPACE given", "run `mamma-kit landmarks WORKSPACE` (or --describe to list the weights)")
-    ws = Workspace(workspace)
-    t0 = time.perf_counter()
-    manifest = StageManifest(ws.cache_dir, "landmarks", ws.root)
-    if source == "gt":
-        from mamma_kit.landmarks.gt import gt_landmarks_file, gt_masks_file, noisy_gt_landmarks
-
-        cams = _cameras(ws, cameras, ws.gt_dir / "landmarks")
-        inputs = [p for c in cams for p in (gt_landmarks_file(ws, c), gt_masks_file(ws, c), ws.mask_file(c))
-                  if p.exists()]
-        settings = {"source": "gt", "noise": noise, "outliers": outliers, "seed": seed, "cameras": cams}
-    else:
-        cams = _cameras(ws, cameras)
-        cap = ws.load_capture()
-        missing = [c for c in cams if not ws.mask_file(c).is_file()]
-        if missing:
-            raise UserError(f"no person masks for {', '.join(missing)} (masks/<cam>.npz)",
-                            "run `mamma-kit track WORKSPACE` first")
-        inputs = [ws.mask_file(c) for c in cams] + [cap.cameras[c].video for c in cams] + [Path(loaded.source)]
-        settings = {"source": "net", "arch": loaded.config.name, "weights": loaded.source, "cameras": cams}
-    outputs = [ws.landmarks_file(c) for c in cams]
-    state = manifest.check(inputs, settings)
-    if state.fresh and not force and all(p.is_file() for p in outputs):
-        log.info(f"landmarks: up to date ({state.reason}); skipped (--force recomputes)")
-        summary = {"stage": "landmarks", "skipped": True, "reason": state.reason, "cameras": cams}
-        if json_out:
-            emit_json(summary)
-        return
-    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-    prod = producer("landmarks " + " ".join(f"{k}={v}" for k, v in settings.items() if k != "cameras"), hashes)
-    per_cam = []
-    for cam in cams:
-        if source == "gt":
-            lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
-            lt.producer = prod
-        else:
-            from mamma_kit.core.tracks import MaskTracks
-            from mamma_kit.landmarks.inference import Predictor, run_camera
-
-            pred = Predictor(loaded, device)
-            lt, summ = run_camera(pred, cam, MaskTracks.load(ws.mask_file(cam)), cap.cameras[cam].video, batch,
-                                  producer=prod)
-        lt.save(ws.landmarks_file(cam))
-        per_cam.append(summ)
-    secs = time.perf_counter() - t0
-    summary = {"stage": "landmarks", "skipped": False, "source": source, "cameras": per_cam, "seconds": round(secs, 2)}
-    if loaded is not None:
-        summary.update({"arch": loaded.config.name, "weights": loaded.source, "landmark_set": loaded.landmark_set})
-    manifest.record(inputs, settings, outputs, summary, secs)
+    res = run_landmarks(Workspace(workspace), source=source, batch=batch, device=device, cameras=cameras, noise=noise,
+                        outliers=outliers, seed=seed, force=force, loaded=loaded)
     if json_out:
-        emit_json(summary)
-    else:
-        log.info(f"landmarks written for {len(cams)} camera(s) in {secs:.1f} s")
+        emit_json(res)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Optional
 
@@ -32,58 +31,11 @@ def match_cmd(
 ) -> None:
     """Cross-view identities: tracklet epipolar affinities per camera pair, Hungarian assignment,
     cycle-consistent grouping (no group holds two co-existing tracks of one view)."""
-    from mamma_kit.core import log
-    from mamma_kit.core.errors import UserError
-    from mamma_kit.core.identities import write_identities
-    from mamma_kit.core.manifest import StageManifest, producer
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.matching.match import MatchSettings, match_workspace
+    from mamma_kit.matching.stage import run_match
 
     setup(quiet, json_out)
-    ws = Workspace(workspace)
-    cams = [c.strip() for c in cameras.split(",") if c.strip()] if cameras else None
-    if cams is None:
-        cams = ws.load_capture().camera_names if ws.capture_toml.is_file() else \
-            sorted(p.stem for p in ws.landmarks_dir.glob("*.npz"))
-    if not cams:
-        raise UserError(f"{ws.root} lists no cameras", "check capture.toml or run `mamma-kit landmarks` first")
-    calib = calibration or ws.calibration
-    tpath = timing or (ws.timing if ws.timing.is_file() else None)
-    if timing is not None and not timing.is_file():
-        raise UserError(f"timing file not found: {timing}", "run `mamma-kit sync WORKSPACE` or fix --timing")
-    settings = MatchSettings(lam=lam, max_distance=max_distance, min_affinity=min_affinity)
-    inputs = [ws.landmarks_file(c) for c in cams] + [Path(calib)] + ([Path(tpath)] if tpath else [])
-    manifest = StageManifest(ws.cache_dir, "match", ws.root)
-    key = {"cameras": cams, "settings": settings.__dict__, "calibration": str(calib), "timing": str(tpath)}
-    outputs = [ws.identities]
-    state = manifest.check(inputs, key)
-    if state.fresh and not force and ws.identities.is_file():
-        log.info(f"match: up to date ({state.reason}); skipped (--force recomputes)")
-        if json_out:
-            emit_json({"stage": "match", "skipped": True, "reason": state.reason})
-        return
-    t0 = time.perf_counter()
-    ident = match_workspace(ws, cams, Path(calib), Path(tpath) if tpath else None, settings)
-    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-    ident.producer = producer("match " + " ".join(f"{k}={v}" for k, v in settings.__dict__.items()
-                                                  if k in ("lam", "max_distance", "min_affinity")), hashes)
-    write_identities(ws.identities, ident)
-    picture = None
-    if plots:
-        from mamma_kit.matching.plots import plot_matching
-
-        picture = ws.relative(plot_matching(ident, ws.report_dir / "match" / "affinities.png"))
-    secs = time.perf_counter() - t0
-    summary = {"stage": "match", "skipped": False, "cameras": cams, "persons": ident.persons(),
-               "unassigned": ident.unassigned, "rejected": len(ident.rejected),
-               "time_pairing": ident.diagnostics.get("time_pairing"), "picture": picture,
-               "identities": ws.relative(ws.identities), "seconds": round(secs, 2)}
-    manifest.record(inputs, key, outputs, {k: v for k, v in summary.items() if k != "persons"}, secs)
+    res = run_match(Workspace(workspace), cameras=cameras, calibration=calibration, timing=timing, lam=lam,
+                    max_distance=max_distance, min_affinity=min_affinity, plots=plots, force=force)
     if json_out:
-        emit_json(summary)
-    else:
-        for p in ident.persons():
-            log.info(f"person {p['id']}: {p['views']} view(s), tracks "
-                     + ", ".join(f"{t['camera']}:{t['track']}" for t in p["tracks"]))
-        log.info(f"identities.json written ({len(ident.person_ids)} persons, {len(ident.rejected)} rejected "
-                 f"matches) in {secs:.1f} s")
+        emit_json(res)

@@ -40,4 +40,9 @@ def synth(
     if json_out:
         emit_json(summary)
     else:
-        log.info(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in summary.get("seconds", {}).items()))
+        secs = summary.get("seconds", {})
+        if isinstance(secs, dict):
+            log.info(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in secs.items()))
+        else:
+            log.info(f"wrote {summary.get('count', '')} crops in {len(summary.get('shards', []))} shards to {out} "
+                     f"({secs} s)")

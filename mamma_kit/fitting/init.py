@@ -38,7 +38,9 @@ def _solve_rays(centres: np.ndarray, dirs: np.ndarray, w: np.ndarray, axis: tupl
     C = centres.reshape(cshape)
     A = (w[..., None, None] * Pm).sum(axis)
     b = (w[..., None] * (Pm @ C[..., None])[..., 0]).sum(axis)
-    A_reg = A + 1e-9 * I
+    # regularise relative to each system's scale: weights span many decades (1 / sigma_m^2)
+    tr = np.trace(A, axis1=-2, axis2=-1)[..., None, None]
+    A_reg = A + (1e-9 * tr + 1e-12) * I
     X = np.linalg.solve(A_reg, b[..., None])[..., 0]
     return X, A
 
@@ -64,7 +66,7 @@ def triangulate(rig: Rig, dirs: np.ndarray, xy: np.ndarray, sigma: np.ndarray, w
     cc = rig.centers()
     f = np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in rig])
     depth = np.linalg.norm(centres_pt3[None] - cc[:, None, None], axis=-1)  # (C, P, T)
-    sig_px = np.sqrt(0.5 * (sigma ** 2).sum(-1))  # (C, P, T, L)
+    sig_px = np.maximum(np.sqrt(0.5 * (sigma ** 2).sum(-1)), 0.1)  # (C, P, T, L); no ray is exact
     sig_m = sig_px * (depth / f[:, None, None])[..., None]
     base = w / np.maximum(sig_m, 1e-6) ** 2
     wr = base.copy()

@@ -1,0 +1,100 @@
+"""The landmarks stage: masks/<cam>.npz + videos -> landmarks/<cam>.npz.
+
+``run_landmarks`` is what `mamma-kit landmarks WORKSPACE` and capture-to-smplx call. With
+``source="net"`` MammaNet predicts the landmarks of every tracked person; ``source="gt"``
+writes a synthetic workspace's ground truth with noise (to test later stages alone). Each
+camera is a unit with its own manifest (.cache/landmarks-<cam>.json), so an interrupted
+run keeps the cameras it finished.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from mamma_kit.core import log
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.manifest import StageManifest, producer
+
+
+def _camera_names(ws, only, fallback_dir: Path | None = None) -> list[str]:
+    from mamma_kit.masks.stage import select_cameras
+
+    if ws.capture_toml.is_file():
+        names = ws.load_capture().camera_names
+    elif fallback_dir is not None and fallback_dir.is_dir():
+        names = sorted(p.stem for p in fallback_dir.glob("*.npz"))
+    else:
+        names = []
+    names = select_cameras(names, only)
+    if not names:
+        raise UserError(f"{ws.root} lists no cameras", "check capture.toml")
+    return names
+
+
+def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None, arch: str | None = None,
+                  batch: int = 8, device: str = "cpu", cameras: list[str] | str | None = None, noise: str = "0",
+                  outliers: float = 0.0, seed: int = 0, force: bool = False, loaded=None) -> dict:
+    """Landmarks for every tracked person of every camera (see the module docstring).
+    ``loaded``: an already loaded model (mamma_kit.landmarks.weights.load_model)."""
+    if source not in ("net", "gt"):
+        raise UserError(f"--source '{source}' is unknown", "use --source net or --source gt")
+    if source == "net" and loaded is None:
+        from mamma_kit.landmarks.weights import load_model
+
+        loaded = load_model(weights, arch, device)
+    t0 = time.perf_counter()
+    if source == "gt":
+        from mamma_kit.landmarks.gt import gt_landmarks_file, gt_masks_file
+
+        cams = _camera_names(ws, cameras, ws.gt_dir / "landmarks")
+        unit_inputs = {c: [p for p in (gt_landmarks_file(ws, c), gt_masks_file(ws, c), ws.mask_file(c)) if p.exists()]
+                       for c in cams}
+        settings = {"source": "gt", "noise": noise, "outliers": outliers, "seed": seed}
+    else:
+        cams = _camera_names(ws, cameras)
+        cap = ws.load_capture()
+        missing = [c for c in cams if not ws.mask_file(c).is_file()]
+        if missing:
+            raise UserError(f"no person masks for {', '.join(missing)} (masks/<cam>.npz)",
+                            "run `mamma-kit track WORKSPACE` first")
+        unit_inputs = {c: [ws.mask_file(c), cap.cameras[c].video, Path(loaded.source)] for c in cams}
+        settings = {"source": "net", "arch": loaded.config.name, "weights": loaded.source}
+    per_cam, ran = [], []
+    pred = None
+    for cam in cams:
+        manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
+        inputs, out = unit_inputs[cam], ws.landmarks_file(cam)
+        state = manifest.check(inputs, {**settings, "camera": cam})
+        if state.fresh and not force and out.is_file():
+            per_cam.append({"camera": cam, "skipped": True, **manifest.load().get("summary", {})})
+            continue
+        tc = time.perf_counter()
+        hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
+        prod = producer("landmarks " + " ".join(f"{k}={v}" for k, v in settings.items()), hashes)
+        if source == "gt":
+            from mamma_kit.landmarks.gt import noisy_gt_landmarks
+
+            lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
+            lt.producer = prod
+        else:
+            from mamma_kit.core.tracks import MaskTracks
+            from mamma_kit.landmarks.inference import Predictor, run_camera
+
+            pred = pred or Predictor(loaded, device)
+            lt, summ = run_camera(pred, cam, MaskTracks.load(ws.mask_file(cam)), cap.cameras[cam].video, batch,
+                                  producer=prod)
+        lt.save(out)
+        manifest.record(inputs, {**settings, "camera": cam}, [out], summ, time.perf_counter() - tc)
+        per_cam.append({"camera": cam, "skipped": False, **summ})
+        ran.append(cam)
+    secs = time.perf_counter() - t0
+    if ran:
+        log.info(f"landmarks written for {', '.join(ran)} in {secs:.1f} s")
+    else:
+        log.info("landmarks: up to date (inputs unchanged); skipped (--force recomputes)")
+    summary = {"stage": "landmarks", "skipped": not ran, "reason": "inputs unchanged" if not ran else
+               f"ran {', '.join(ran)}", "source": source, "cameras": per_cam, "seconds": round(secs, 2)}
+    if loaded is not None:
+        summary.update({"arch": loaded.config.name, "weights": loaded.source, "landmark_set": loaded.landmark_set})
+    return summary

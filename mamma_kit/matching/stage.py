@@ -1,0 +1,67 @@
+"""The match stage: landmarks/<cam>.npz + calibration.toml (+ timing.toml) -> identities.json.
+
+``run_match`` is what `mamma-kit match` and capture-to-smplx call (manifest in .cache/match.json).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from mamma_kit.core import log
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.manifest import StageManifest, producer
+
+
+def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path | None = None,
+              timing: Path | None = None, lam: float = 0.05, max_distance: float = 0.12, min_affinity: float = 0.25,
+              plots: bool = True, force: bool = False) -> dict:
+    """Cross-view identities of every track (see matching.match)."""
+    from mamma_kit.core.identities import write_identities
+    from mamma_kit.masks.stage import select_cameras
+    from mamma_kit.matching.match import MatchSettings, match_workspace
+
+    names = ws.load_capture().camera_names if ws.capture_toml.is_file() else \
+        sorted(p.stem for p in ws.landmarks_dir.glob("*.npz"))
+    cams = select_cameras(names, cameras)
+    if not cams:
+        raise UserError(f"{ws.root} lists no cameras", "check capture.toml or run `mamma-kit landmarks` first")
+    calib = Path(calibration or ws.calibration)
+    if timing is not None and not Path(timing).is_file():
+        raise UserError(f"timing file not found: {timing}", "run `mamma-kit sync WORKSPACE` or fix --timing")
+    tpath = Path(timing) if timing is not None else (ws.timing if ws.timing.is_file() else None)
+    settings = MatchSettings(lam=lam, max_distance=max_distance, min_affinity=min_affinity)
+    inputs = [ws.landmarks_file(c) for c in cams] + [calib] + ([tpath] if tpath else [])
+    manifest = StageManifest(ws.cache_dir, "match", ws.root)
+    key = {"cameras": cams, "settings": settings.__dict__, "calibration": ws.relative(calib),
+           "timing": ws.relative(tpath) if tpath else None, "plots": plots}
+    state = manifest.check(inputs, key)
+    if state.fresh and not force and ws.identities.is_file():
+        log.info(f"match: up to date ({state.reason}); skipped (--force recomputes)")
+        return {"stage": "match", "skipped": True, "reason": state.reason, **manifest.load().get("summary", {})}
+    log.info(f"match: {state.reason}: running")
+    t0 = time.perf_counter()
+    ident = match_workspace(ws, cams, calib, tpath, settings)
+    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
+    ident.producer = producer("match " + " ".join(f"{k}={v}" for k, v in settings.__dict__.items()
+                                                  if k in ("lam", "max_distance", "min_affinity")), hashes)
+    write_identities(ws.identities, ident)
+    outputs = [ws.identities]
+    picture = None
+    if plots:
+        from mamma_kit.matching.plots import plot_matching
+
+        pic = plot_matching(ident, ws.report_dir / "match" / "affinities.png")
+        picture = ws.relative(pic)
+        outputs.append(pic)
+    secs = time.perf_counter() - t0
+    summary = {"cameras": cams, "persons": ident.persons(), "unassigned": ident.unassigned,
+               "rejected": len(ident.rejected), "time_pairing": ident.diagnostics.get("time_pairing"),
+               "picture": picture, "identities": ws.relative(ws.identities)}
+    manifest.record(inputs, key, outputs, summary, secs)
+    for p in ident.persons():
+        log.info(f"person {p['id']}: {p['views']} view(s), tracks "
+                 + ", ".join(f"{t['camera']}:{t['track']}" for t in p["tracks"]))
+    log.info(f"identities.json written ({len(ident.person_ids)} persons, {len(ident.rejected)} rejected "
+             f"matches) in {secs:.1f} s")
+    return {"stage": "match", "skipped": False, "reason": state.reason, **summary, "seconds": round(secs, 2)}
