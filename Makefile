@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 TORCH_SPEC ?= torch==2.13.0
 DEMO_OUT ?= demo-out
 
-.PHONY: env demo test clean
+.PHONY: env demo test browser clean
 
 env: $(VENV)/.installed
 
@@ -23,7 +23,14 @@ $(VENV)/.installed: pyproject.toml
 demo: env
 	$(BIN)/mamma-kit demo --out $(DEMO_OUT)
 
-test: env
+# The report test opens the HTML in a real headless Chromium (Debian's package); without
+# apt-get (or root) that one test is skipped with its reason.
+browser:
+	@command -v chromium >/dev/null 2>&1 || { command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] && \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
+	  || echo "chromium not installed: the report's browser test will be skipped"; }
+
+test: env browser
 	$(BIN)/python -m pytest
 
 clean:

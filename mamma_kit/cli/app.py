@@ -45,7 +45,8 @@ def _register() -> None:
     from mamma_kit.cli import landmarks, train  # noqa: F401
     from mamma_kit.cli import match, track  # noqa: F401
     from mamma_kit.cli import board, calibrate  # noqa: F401
-    from mamma_kit.cli import fit  # noqa: F401
+    from mamma_kit.cli import fit, report  # noqa: F401
+    from mamma_kit.cli import pipeline  # noqa: F401
 
 
 _register()

@@ -13,6 +13,7 @@ capture.toml::
     [capture]
     name = "my-dance"
     body_model = "open"                # or a path to SMPLX_NEUTRAL.npz
+    people = 2                         # optional: how many people to expect (helps the builtin tracker)
     [board]
     spec = "charuco.toml"              # board spec used for the board videos (optional)
     [cameras.cam0]
@@ -52,6 +53,7 @@ class CaptureConfig:
     cameras: dict[str, CameraEntry]
     body_model: str = "open"
     board_spec: Path | None = None
+    people: int | None = None
     start_s: float | None = None
     end_s: float | None = None
     settings: dict[str, Any] = field(default_factory=dict)
@@ -63,6 +65,14 @@ class CaptureConfig:
 
     def stage_settings(self, stage: str) -> dict[str, Any]:
         return dict(self.settings.get(stage, {}))
+
+
+def _people(v) -> int | None:
+    if v is None:
+        return None
+    if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+        raise UserError(f"capture.toml [capture] people = {v!r} is not a count", "write e.g. people = 2, or remove it")
+    return v
 
 
 class Workspace:
@@ -172,6 +182,7 @@ class Workspace:
             name=str(cap.get("name", self.root.name)),
             cameras=entries,
             body_model=str(cap.get("body_model", "open")),
+            people=_people(cap.get("people")),
             board_spec=self.resolve(spec, "board spec") if spec else None,
             start_s=seq.get("start_s"), end_s=seq.get("end_s"),
             settings=dict(data.get("settings", {})), raw=data,

@@ -1,0 +1,289 @@
+"""capture-to-smplx: the whole chain on one workspace, each stage cached by its inputs.
+
+    calibrate -> sync -> track -> landmarks -> match -> fit -> report
+
+Every stage is the same function its own command calls (calibration.stage, timing.stage,
+masks.stage, landmarks.stage, matching.stage, fitting.fit_workspace, report.build_report),
+so a stage is skipped exactly when its manifest (.cache/<stage>.json, per camera for track
+and landmarks) says its inputs, settings and outputs are unchanged, and recomputed - saying
+why - when anything it reads changed. Outputs are written atomically and a manifest only
+after its outputs, so a run killed at any point resumes where it stopped: finished stages
+(and cameras) are reused, the interrupted one is redone.
+
+Stage options come from capture.toml, e.g.::
+
+    [settings.calibrate]   model = "radtan"   detect_fps = 10   max_views = 40   floor = true
+    [settings.sync]        method = "auto"    (and every sync setting; see sync/*.toml)
+    [settings.track]       backend = "builtin"   (sam2: sam2_checkpoint, sam2_config, chunk, device)
+    [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8   (source = "gt" on synthetic data)
+    [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
+    [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
+    [settings.report]      video = true
+
+``init_workspace`` (`mamma-kit init`) writes that capture.toml for a user's own videos.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mamma_kit.core import log
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.workspace import STAGES, Workspace
+
+KNOWN = {
+    "calibrate": {"model", "detect_fps", "max_views", "floor", "board"},
+    "track": {"backend", "sam2_checkpoint", "sam2_config", "chunk", "device", "prompts", "pictures", "people"},
+    "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads"},
+    "match": {"lam", "max_distance", "min_affinity", "plots"},
+    "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model"},
+    "report": {"video"},
+}
+
+
+@dataclass
+class RunSummary:
+    workspace: str
+    stages: dict[str, dict] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {"workspace": self.workspace, "stages": self.stages, "seconds": round(self.seconds, 2),
+                "ran": [s for s, d in self.stages.items() if d.get("status") == "ran"],
+                "skipped": [s for s, d in self.stages.items() if d.get("status") == "skipped"]}
+
+
+def _options(cap, stage: str) -> dict:
+    opts = cap.stage_settings(stage)
+    if stage in KNOWN:
+        bad = sorted(set(opts) - KNOWN[stage])
+        if bad:
+            raise UserError(f"capture.toml [settings.{stage}] has unknown keys: {', '.join(bad)}",
+                            f"valid keys: {', '.join(sorted(KNOWN[stage]))}")
+    return opts
+
+
+def stage_range(from_stage: str | None, to_stage: str | None) -> list[str]:
+    for s in (from_stage, to_stage):
+        if s is not None and s not in STAGES:
+            raise UserError(f"unknown stage '{s}'", f"stages: {', '.join(STAGES)}")
+    a = STAGES.index(from_stage) if from_stage else 0
+    b = STAGES.index(to_stage) if to_stage else len(STAGES) - 1
+    if a > b:
+        raise UserError(f"--from {from_stage} comes after --to {to_stage}", f"stages run in order: {' -> '.join(STAGES)}")
+    return list(STAGES[a:b + 1])
+
+
+def _key_facts(stage: str, res: dict) -> str:
+    """One line of the stage's key diagnostics for the summary."""
+    try:
+        if stage == "calibrate":
+            return f"rms {res['rms_px']:.3f} px" if res.get("rms_px") is not None else res.get("note", "")
+        if stage == "sync":
+            cams = res.get("cameras", {})
+            return ", ".join(f"{n} {c['offset_s'] * 1e3:+.2f} ms ({c['method']}, conf {c['confidence']:.2f})"
+                             for n, c in cams.items())
+        if stage == "track":
+            return ", ".join(f"{c['camera']} {c.get('tracks', '?')} tracks" for c in res.get("cameras", []))
+        if stage == "landmarks":
+            return f"{res.get('source')} {res.get('arch', '')}".strip()
+        if stage == "match":
+            persons = res.get("persons") or []
+            return f"{len(persons)} person(s), views " + ", ".join(str(p.get("views")) for p in persons)
+        if stage == "fit":
+            rp = res.get("reprojection_px", {})
+            med = [v["median"] for v in rp.values() if v.get("landmarks")]
+            return (f"{len(res.get('persons', []))} person(s) x {res.get('frames')} frames, median reprojection "
+                    f"{sum(med) / len(med):.2f} px" if med else "")
+        if stage == "report":
+            return str(res.get("path", ""))
+    except (KeyError, TypeError, ZeroDivisionError):
+        return ""
+    return ""
+
+
+def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: bool = True) -> dict:
+    """Run (or skip) one stage with capture.toml's options; returns its summary with 'status'."""
+    opts = _options(cap, stage)
+    if stage == "calibrate":
+        has_board = any(e.board_video is not None for e in cap.cameras.values())
+        if not has_board:
+            if ws.calibration.is_file():
+                return {"stage": "calibrate", "status": "provided",
+                        "note": "calibration.toml given (no board videos in capture.toml)"}
+            raise UserError("no calibration: capture.toml lists no board videos and there is no calibration.toml",
+                            "add board_video = \"...\" per camera (and [board] spec), or put a calibration.toml "
+                            "in the workspace (`mamma-kit calib convert` reads other tools' formats)")
+        from mamma_kit.calibration.stage import run_calibrate, settings_from
+
+        st = settings_from(opts.get("model", "radtan"), float(opts.get("detect_fps", 10.0)),
+                           int(opts.get("max_views", 40)), bool(opts.get("floor", True)))
+        res = run_calibrate(ws, board=opts.get("board"), settings=st, force=force, progress=progress)
+    elif stage == "sync":
+        from mamma_kit.timing.stage import run_sync
+
+        res = run_sync(ws, force=force)
+    elif stage == "track":
+        from mamma_kit.masks.stage import run_track
+
+        res = run_track(ws, backend=opts.get("backend", "builtin"),
+                        sam2_checkpoint=ws.resolve(opts["sam2_checkpoint"], "sam2 checkpoint")
+                        if opts.get("sam2_checkpoint") else None, sam2_config=opts.get("sam2_config"),
+                        chunk=int(opts.get("chunk", 64)), device=opts.get("device", "cpu"),
+                        prompts=ws.resolve(opts["prompts"], "prompts file") if opts.get("prompts") else None,
+                        pictures=bool(opts.get("pictures", True)), force=force, people=opts.get("people"))
+    elif stage == "landmarks":
+        from mamma_kit.landmarks.stage import run_landmarks
+
+        if opts.get("threads"):
+            import torch
+
+            torch.set_num_threads(int(opts["threads"]))
+        res = run_landmarks(ws, source=opts.get("source", "net"), weights=opts.get("weights"), arch=opts.get("arch"),
+                            batch=int(opts.get("batch", 8)), device=opts.get("device", "cpu"),
+                            noise=str(opts.get("noise", "0")), outliers=float(opts.get("outliers", 0.0)),
+                            seed=int(opts.get("seed", 0)), force=force)
+    elif stage == "match":
+        from mamma_kit.matching.stage import run_match
+
+        res = run_match(ws, lam=float(opts.get("lam", 0.05)), max_distance=float(opts.get("max_distance", 0.12)),
+                        min_affinity=float(opts.get("min_affinity", 0.25)), plots=bool(opts.get("plots", True)),
+                        force=force)
+    elif stage == "fit":
+        from mamma_kit.fitting import FitConfig, fit_workspace
+
+        cfg = FitConfig(chunk=int(opts.get("chunk", 120)), floor=bool(opts.get("floor", False)))
+        res = fit_workspace(ws, opts.get("cameras"), opts.get("camera_list"), int(opts.get("stages", 4)),
+                            opts.get("body_model"), cfg, command="mamma-kit capture-to-smplx", force=force,
+                            threads=opts.get("threads"))
+    elif stage == "report":
+        from mamma_kit.report import run_report
+
+        res = run_report(ws, video=bool(opts.get("video", True)), force=force, progress=progress)
+    else:  # pragma: no cover - stage_range guards this
+        raise ValueError(stage)
+    res = dict(res)
+    res["status"] = "skipped" if res.get("skipped") else "ran"
+    return res
+
+
+def capture_to_smplx(workspace: str | Path, from_stage: str | None = None, to_stage: str | None = None,
+                     force: bool = False, progress: bool = True) -> dict:
+    """Run the chain on a workspace; returns the run summary (per stage: status, seconds, reason,
+    key facts, and the stage's own summary)."""
+    ws = Workspace(workspace)
+    cap = ws.load_capture()
+    stages = stage_range(from_stage, to_stage)
+    run = RunSummary(str(ws.root))
+    t0 = time.perf_counter()
+    for i, stage in enumerate(stages):
+        log.info(f"[bold]\\[{i + 1}/{len(stages)}] {stage}[/bold]")
+        ts = time.perf_counter()
+        res = run_stage(ws, stage, cap, force=force, progress=progress)
+        secs = time.perf_counter() - ts
+        facts = _key_facts(stage, res)
+        run.stages[stage] = {"status": res["status"], "seconds": round(secs, 2), "reason": res.get("reason", ""),
+                             "facts": facts, "summary": res}
+        log.info(f"    {stage}: {res['status']} in {secs:.1f} s" + (f" - {facts}" if facts else ""))
+    run.seconds = time.perf_counter() - t0
+    return run.to_dict()
+
+
+def print_summary(summary: dict) -> None:
+    """A table of what ran, how long, and the key diagnostics (stderr)."""
+    from rich.table import Table
+
+    t = Table(title=f"capture-to-smplx: {summary['workspace']}", show_lines=False)
+    for col in ("stage", "status", "seconds", "key diagnostics"):
+        t.add_column(col)
+    for name, d in summary["stages"].items():
+        t.add_row(name, d["status"], f"{d['seconds']:.1f}", d.get("facts", ""))
+    t.add_row("total", "", f"{summary['seconds']:.1f}", "")
+    if not log.is_quiet():
+        log.console.print(t)
+
+
+# ---- mamma-kit init ---------------------------------------------------------------------
+NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+def _place(src: Path, dst: Path, copy: bool) -> str:
+    """Hard link (else copy) src to dst; returns 'linked' / 'copied' / 'kept'."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.exists():
+        if dst.samefile(src):
+            return "kept"
+        dst.unlink()
+    if not copy:
+        try:
+            os.link(src, dst)
+            return "linked"
+        except OSError:  # another filesystem: copy instead
+            pass
+    shutil.copy2(src, dst)
+    return "copied"
+
+
+def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path] | None = None,
+                   board: str | None = None, names: list[str] | None = None, copy: bool = False,
+                   backend: str = "builtin", force: bool = False, people: int | None = None) -> dict:
+    """A capture workspace for a user's own videos: they are hard-linked (or copied) into
+    WORKSPACE/videos and WORKSPACE/board, so that capture.toml holds only paths inside the
+    workspace, and each is checked to be a readable video before anything is written."""
+    from mamma_kit.video import VideoReader
+
+    ws = Workspace(root, must_exist=False)
+    if ws.capture_toml.is_file() and not force:
+        raise UserError(f"{ws.capture_toml} already exists", "pass --force to overwrite it, or choose another folder")
+    videos = [Path(v) for v in videos]
+    if len(videos) < 2:
+        raise UserError("a capture needs videos from at least two cameras", "pass --videos A.mp4 B.mp4 ...")
+    names = names or [v.stem for v in videos]
+    if len(names) != len(videos):
+        raise UserError(f"{len(names)} names for {len(videos)} videos", "give one --names entry per video")
+    if len(set(names)) != len(names):
+        raise UserError(f"camera names repeat: {', '.join(names)}", "rename the files or pass --names cam0,cam1,...")
+    bad = [n for n in names if not NAME_RE.match(n)]
+    if bad:
+        raise UserError(f"camera names with spaces or symbols: {', '.join(bad)}", "pass --names cam0,cam1,...")
+    if board_videos:
+        board_videos = [Path(v) for v in board_videos]
+        if len(board_videos) != len(videos):
+            raise UserError(f"{len(board_videos)} board videos for {len(videos)} cameras",
+                            "pass one board video per camera, in the order of --videos")
+        if board is None:
+            raise UserError("board videos given without --board", "pass the printed board's spec, e.g. --board charuco-a1")
+    for p in videos + (board_videos or []):
+        if not p.is_file():
+            raise UserError(f"video not found: {p}", "check the path")
+        VideoReader(p).info  # a corrupt or non-video file ends here, before anything is written
+    ws.root.mkdir(parents=True, exist_ok=True)
+    cams, how = {}, {}
+    for i, (n, v) in enumerate(zip(names, videos)):
+        dst = ws.root / "videos" / f"{n}{v.suffix.lower()}"
+        how[n] = _place(v, dst, copy)
+        cams[n] = {"video": ws.relative(dst)}
+        if board_videos:
+            bdst = ws.root / "board" / f"{n}{board_videos[i].suffix.lower()}"
+            _place(board_videos[i], bdst, copy)
+            cams[n]["board_video"] = ws.relative(bdst)
+    data: dict = {"capture": {"name": ws.root.name, "body_model": "open", **({"people": people} if people else {})},
+                  "cameras": cams,
+                  "settings": {"track": {"backend": backend}}}
+    if board is not None:
+        from mamma_kit.calibration.board import load_board_spec
+        from mamma_kit.core.io import write_toml
+
+        spec_path = ws.root / "board" / "board.toml"
+        write_toml(spec_path, load_board_spec(board).to_dict())
+        data["board"] = {"spec": ws.relative(spec_path)}
+    ws.write_capture(data)
+    log.info(f"wrote {ws.capture_toml}: {len(cams)} cameras ({', '.join(names)}); videos "
+             f"{', '.join(sorted(set(how.values())))}; next: mamma-kit capture-to-smplx {ws.root}")
+    return {"workspace": str(ws.root), "capture_toml": str(ws.capture_toml), "cameras": cams,
+            "board": data.get("board", {}).get("spec")}
