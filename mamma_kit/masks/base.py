@@ -26,6 +26,9 @@ class CameraInput:
     name: str
     video: Path
     workspace_root: Path
+    # the camera's board video: calibration assumes the camera did not move between it and
+    # the capture, so the builtin backend can take an empty-scene background from it
+    board_video: Path | None = None
 
 
 class MaskBackend(Protocol):

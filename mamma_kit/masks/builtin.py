@@ -5,7 +5,9 @@ Per camera:
 1. Background model: the per-pixel median over frames sampled across the video, then again
    over the samples where that pixel was not foreground (a person standing still for a third
    of the video does not end up in the background). Per-pixel noise from the background samples'
-   median absolute deviation.
+   median absolute deviation. When the camera has a board video (the calibration session, shot
+   from the same place), its median is a clean plate: used when it agrees with the capture's
+   own background (``plate_background``), so people who never move are still foreground.
 2. Foreground in a shadow-robust colour model: each pixel's colour is compared with the
    background as a brightness ratio alpha = <I, B> / <B, B> and a chromatic distortion
    |I - alpha B| (Horprasert-style). A soft shadow darkens the background without changing
@@ -56,6 +58,9 @@ class BuiltinSettings:
     max_lost: int = 45  # frames a lost track can be re-identified
     reid_similarity: float = 0.5  # Bhattacharyya coefficient needed to re-identify a lost track
     velocity_smoothing: float = 0.5
+    people: int | None = None  # how many people the capture shows (splits blobs of people side by side)
+    use_board_plate: bool = True  # background from the camera's board video when it shows the same scene
+    plate_max_differ: float = 0.35  # fraction of the image where plate and capture may differ (people)
 
 
 # ---- colour --------------------------------------------------------------------------
@@ -132,6 +137,30 @@ def build_background(frames: list[np.ndarray], s: BuiltinSettings) -> Background
     # pixels people cover in most samples look noisy: cap at 3x the image's typical noise
     noise = np.minimum(noise, 3.0 * max(float(np.median(noise)), s.noise_floor))
     return Background(med.astype(np.float32), np.maximum(noise, s.noise_floor).astype(np.float32))
+
+
+def plate_background(frames: list[np.ndarray], capture_bg: Background, s: BuiltinSettings
+                     ) -> tuple[Background | None, dict]:
+    """The background from frames of the camera's board video (a clean plate), if it shows
+    the capture's scene: calibration already assumes the camera did not move between the two,
+    and the board and its holder move about, so the median leaves the empty scene - also where
+    the people of the capture never moved. Checked against the capture's own median (which is
+    right wherever nobody stood for long): a per-channel gain absorbs a change of light; if the
+    two still differ on more than ``plate_max_differ`` of the image, the plate is not used."""
+    plate = build_background(frames, s)
+    A, B = plate.mean_hw3, capture_bg.mean_hw3
+    sig = np.maximum(np.maximum(plate.noise_hw, capture_bg.noise_hw), s.noise_floor)
+    close = np.abs(A - B).max(-1) < 6.0 * sig
+    gain = np.ones(3, np.float32)
+    if close.mean() > 0.05:
+        gain = np.median(B[close] / np.maximum(A[close], 1.0), 0).astype(np.float32)
+        A = A * gain
+        close = np.abs(A - B).max(-1) < 6.0 * sig
+    differ = 1.0 - float(close.mean())
+    info = {"plate_differs": round(differ, 3), "plate_gain": [round(float(g), 3) for g in gain]}
+    if differ > s.plate_max_differ:
+        return None, info
+    return Background(A.astype(np.float32), np.maximum(plate.noise_hw, s.noise_floor).astype(np.float32)), info
 
 
 def _radius(h: int) -> int:
@@ -256,6 +285,38 @@ def split_component(comp: np.ndarray, preds: list[np.ndarray], hists: list[np.nd
     return parts, conf
 
 
+def split_side_by_side(mask: np.ndarray, min_height: float = 0.6, valley: float = 0.35
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Two people side by side in one blob (holding hands, arm in arm) -> their two masks, cut
+    at the deepest valley of the column profile (foreground pixels per column) in the middle
+    60 % of the blob; None unless both sides are person-like: at least ``min_height`` of the
+    blob tall, a quarter of its area, and the valley below ``valley`` x the lower side's peak.
+    A single person with arms out has no such valley (one side would be an arm, not tall)."""
+    ys, xs = np.nonzero(mask)
+    if len(xs) < 50:
+        return None
+    x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
+    prof = np.bincount(xs - x0, minlength=x1 - x0).astype(np.float64)
+    prof = np.convolve(prof, np.ones(3) / 3, mode="same")
+    w = x1 - x0
+    lo, hi = int(0.2 * w), int(0.8 * w)
+    if hi - lo < 3:
+        return None
+    cut = lo + int(np.argmin(prof[lo:hi]))
+    left, right = xs - x0 < cut, xs - x0 >= cut
+    H, area = y1 - y0, len(xs)
+    for side in (left, right):
+        if side.sum() < 0.25 * area or np.ptp(ys[side]) + 1 < min_height * H:
+            return None
+    if prof[cut] > valley * min(prof[:cut].max(), prof[cut:].max()):
+        return None
+    a = np.zeros_like(mask)
+    b = np.zeros_like(mask)
+    a[ys[left], xs[left]] = True
+    b[ys[right], xs[right]] = True
+    return a, b
+
+
 class Tracker:
     """Frame-by-frame tracker over foreground components (see module doc)."""
 
@@ -349,6 +410,8 @@ class Tracker:
             self.tracks[k] = Track(k, c, _centroid(c), last_seen=t, hist=histogram(cidx, c), area=float(c.sum()))
             out[k] = (c, 1.0)
             pure.add(k)
+        if s.people and len(out) < s.people:
+            self._split_blobs(t, out, pure, cidx)
         # update state
         a = self.s.velocity_smoothing
         for k, (m, _) in out.items():
@@ -366,11 +429,57 @@ class Tracker:
 
 
 # ---- the backend -------------------------------------------------------------------------
+    def _split_blobs(self, t: int, out: dict, pure: set, cidx: np.ndarray) -> None:
+        """Fewer tracks than the people the user said are there: a blob holding two people side
+        by side (they came in together, or touch from the first frame) becomes two tracks; from
+        then on the usual prediction + colour split keeps them apart."""
+        for k in sorted(out, key=lambda k: -int(out[k][0].sum())):
+            if len(out) >= self.s.people:
+                return
+            two = split_side_by_side(out[k][0])
+            if two is None:
+                continue
+            tr = self.tracks[k]
+            keep = 0 if np.count_nonzero(two[0] & tr.mask) >= np.count_nonzero(two[1] & tr.mask) else 1
+            out[k] = (two[keep], 0.5)
+            m = two[1 - keep]
+            j = self.next_id
+            self.next_id += 1
+            self.tracks[j] = Track(j, m, _centroid(m), last_seen=t, hist=histogram(cidx, m), area=float(m.sum()))
+            out[j] = (m, 0.5)
+            pure.add(j)
+            tr.hist = histogram(cidx, two[keep])
+            tr.area = float(two[keep].sum())
+
+
 class BuiltinBackend:
     name = "builtin"
 
     def __init__(self, settings: BuiltinSettings | None = None):
         self.s = settings or BuiltinSettings()
+
+    def _plate(self, cam: CameraInput, capture_bg: Background, prep, size_wh) -> tuple[Background, dict]:
+        """The board video's clean plate, or the capture's own background with the reason why not."""
+        from mamma_kit.video.reader import VideoReader
+
+        s = self.s
+        rd = VideoReader(cam.board_video)
+        W, H = size_wh
+        bw, bh = rd.size
+        if abs(bw / bh - W / H) > 0.01:
+            info = {"source": "capture median", "plate": f"board video is {bw}x{bh}, the capture {W}x{H}"}
+            log.warn(f"{cam.name}: {info['plate']}: background from the capture itself")
+            return capture_bg, info
+        n = rd.n_frames
+        idx = np.unique(np.round(np.linspace(0, n - 1, min(s.bg_samples, n))).astype(int))
+        frames = [prep(img if (bw, bh) == (W, H) else cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA))
+                  for _, _, img in rd.read_indices(idx)]
+        plate, info = plate_background(frames, capture_bg, s)
+        if plate is None:
+            log.warn(f"{cam.name}: the board video's scene differs from the capture's on {info['plate_differs']:.0%} "
+                     "of the image (camera moved or light changed): background from the capture itself")
+            return capture_bg, {"source": "capture median", **info}
+        return plate, {"source": "board video", **info}
 
     def track_camera(self, cam: CameraInput) -> tuple[MaskTracks, dict]:
         from mamma_kit.video.reader import VideoReader
@@ -390,6 +499,9 @@ class BuiltinBackend:
         samples = [prep(img) for _, _, img in rd.read_indices(idx)]
         bg = build_background(samples, s)
         del samples
+        bg_info: dict = {"source": "capture median"}
+        if cam.board_video is not None and s.use_board_plate:
+            bg, bg_info = self._plate(cam, bg, prep, (W, H))
         tracker = Tracker((ws_[1], ws_[0]), s)
         out_tracks = MaskTrackBuilder(cam.name, (W, H), times)
         for t, img in log.track(rd.frames(), f"track {cam.name}", total=n):
@@ -404,6 +516,7 @@ class BuiltinBackend:
         mt = out_tracks.build()
         summ = track_summary(mt)
         summ["working_size"] = list(ws_)
+        summ["background"] = bg_info
         summ["settings"] = asdict(s)
         return mt, summ
 

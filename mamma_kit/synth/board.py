@@ -390,7 +390,7 @@ class BoardRenderer:
     """Renders one camera's view of the board at given board poses (inverse mapping)."""
 
     def __init__(self, cam: Camera, spec: BoardSpec, *, supersample: int = 3, seed: int = 0,
-                 texture: _Texture | None = None):
+                 texture: _Texture | None = None, background: np.ndarray | None = None):
         self.cam = cam
         self.spec = spec
         self.s = int(supersample)
@@ -405,6 +405,8 @@ class BoardRenderer:
         self.tint = rng.uniform(0.92, 1.05, 3).astype(np.float32)
         self.gain = float(rng.uniform(0.9, 1.1))
         self.background_lit = (self.background * self.vignette * self.gain).astype(np.float32)
+        if background is not None:  # the scene itself (float32 0..255, as rendered, lens included)
+            self.background = self.background_lit = np.asarray(background, np.float32)
         self._noise, self._noise_sigma, self._noise_k = None, None, 0
         # outline of the paper (board coords), densely sampled so distortion bends it right
         W, H = spec.size_m
@@ -540,7 +542,8 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
                          exposure_s: float = 1 / 120, motion_blur: bool = True, supersample: int = 3,
                          tremor_m: float = 0.0003, crf: int = 18, rotation_deg: Mapping[str, int] | None = None,
                          video_ext: str = ".mp4", trajectory: BoardTrajectory | None = None,
-                         cameras: Sequence[str] | None = None, progress: bool = True, **plan_kw) -> dict:
+                         cameras: Sequence[str] | None = None, progress: bool = True,
+                         backgrounds: Mapping[str, np.ndarray] | None = None, **plan_kw) -> dict:
     """Render a board session as one H.264 video per camera: ``out_dir/<cam><video_ext>``.
 
     Parameters (what a recipe's [board] table maps onto):
@@ -565,6 +568,8 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
       rotation_deg per camera display-rotation metadata written into the file (0 = none)
       trajectory   a ready BoardTrajectory instead of planning one
       cameras      render only these cameras (the trajectory still sees the whole rig)
+      backgrounds  per camera the empty scene behind the board (float32 RGB 0..255, e.g.
+                   CameraRenderer.static_image()); default: a random cluttered backdrop
       plan_kw      passed to :func:`plan_session` (hold_s, volume_radius, height_range, ...)
 
     Returns a dict: ``videos`` {cam: path}, ``frame_times`` {cam: camera-clock times},
@@ -592,7 +597,8 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
         else:
             t_cam = np.arange(int(round(duration_s * fps))) / fps
         t_ref = clk.to_ref(t_cam)
-        ren = BoardRenderer(cam, spec, supersample=supersample, seed=seed * 101 + ci, texture=tex)
+        ren = BoardRenderer(cam, spec, supersample=supersample, seed=seed * 101 + ci, texture=tex,
+                            background=(backgrounds or {}).get(name))
         cv2.setRNGSeed(seed * 101 + ci)  # the sensor noise (cv2.randn) is reproducible too
         R_wb, t_wb = traj.pose(t_ref)
         vis = np.array([corner_visibility(cam, R_wb[i], t_wb[i], spec, 89.0) for i in range(len(t_ref))])

@@ -82,7 +82,7 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
     # ---- calibration session -------------------------------------------------------------
     if board and recipe.board is not None:
         t1 = time.perf_counter()
-        paths["board_videos"] = _render_board(recipe, cams, out)
+        paths["board_videos"] = _render_board(recipe, cams, out, scene)
         times["board"] = round(time.perf_counter() - t1, 2)
 
     # ---- ground truth and capture.toml ---------------------------------------------------
@@ -97,7 +97,7 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
     if recipe.path is not None:
         shutil.copyfile(recipe.path, gt / "recipe.toml")
     cap = {
-        "capture": {"name": recipe.name, "body_model": "open", "synthetic": True},
+        "capture": {"name": recipe.name, "body_model": "open", "synthetic": True, "people": recipe.people_count},
         "cameras": {c.camera.name: {"video": paths["videos"][c.camera.name],
                                     **({"board_video": paths["board_videos"][c.camera.name]}
                                        if c.camera.name in paths["board_videos"] else {})} for c in cams},
@@ -132,18 +132,24 @@ def _render_audio(recipe: Recipe, cams: list[SynthCamera]) -> dict:
                                   reverb=reverb, ltc=ltc, seed=recipe.seed + 7)
 
 
-def _render_board(recipe: Recipe, cams: list[SynthCamera], out: Path) -> dict:
+def _render_board(recipe: Recipe, cams: list[SynthCamera], out: Path, scene=None) -> dict:
     from mamma_kit.calibration.board import load_board_spec
     from mamma_kit.synth.board import render_board_session
+    from mamma_kit.synth.render import CameraRenderer
 
     spec = load_board_spec(str(recipe.board.get("spec", "charuco-a1")))
+    backgrounds = None
+    if recipe.board.get("background", "scene") == "scene" and scene is not None:
+        # the board is shown where the capture happens, by cameras that do not move
+        backgrounds = {c.camera.name: CameraRenderer(c.camera, scene.env).static_image() for c in cams}
     info = render_board_session(out / "board", rig_of(cams), spec, seed=recipe.seed + 11,
                                 duration_s=float(recipe.board.get("duration_s", 20.0)), fps=recipe.fps,
                                 clocks={c.camera.name: c.clock for c in cams},
                                 closeups=bool(recipe.board.get("closeups", True)),
                                 n_closeups=int(recipe.board.get("n_closeups", 8)),
                                 noise_sigma=float(recipe.render.get("noise", 2.0)),
-                                supersample=int(recipe.board.get("supersample", 2)), progress=False)
+                                supersample=int(recipe.board.get("supersample", 2)), progress=False,
+                                backgrounds=backgrounds)
     vids = info.get("videos", {})
     return {name: str(Path(p).resolve().relative_to(out.resolve())) for name, p in vids.items()}
 

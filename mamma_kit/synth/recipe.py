@@ -61,6 +61,8 @@ Ranges written as ``[lo, hi]`` are sampled per camera/person from the recipe's s
     [board]                     # optional calibration session
     spec = "charuco-5x7"        # calib/<spec>.toml
     duration_s = 10.0
+    background = "scene"        # the board shown in the capture's own scene (the cameras stay put
+                                # between board and capture), or "clutter": a random cluttered backdrop
 
     [render]
     scale = 1.0                 # render at scale x resolution (tests use small scales)
@@ -290,6 +292,7 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
         bf = _Fields(board, "board.")
         bf.string("spec", "charuco-5x7")
         bf.num("duration_s", 10.0, lo=1, hi=600)
+        bf.string("background", "scene", choices=("scene", "clutter"))
     render = _Fields(data.get("render", {}), "render.")
     render.num("scale", 1.0, lo=0.02, hi=4)
     render.num("noise", 2.0, lo=0, hi=50)

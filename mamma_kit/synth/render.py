@@ -153,6 +153,12 @@ class CameraRenderer:
         # the static part of the image (floor + background), shaded once without people
         self._static_rgb, self._static_depth = self._shade_static(np.arange(len(dirs)), np.zeros((0, 2)))
 
+    def static_image(self) -> np.ndarray:
+        """The empty scene (floor and background, no people) as float32 RGB 0..255 (H, W, 3):
+        what the camera sees while the board is shown to it (a clean plate)."""
+        w, h = self.camera.size
+        return (self._static_rgb.reshape(h, w, 3) * 255.0).astype(np.float32)
+
     def _shade_static(self, idx: np.ndarray, blobs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         d = self.dirs[idx]
         C = self.origin

@@ -88,8 +88,9 @@ def build_rig(recipe: Recipe, frames: int | None = None) -> list[SynthCamera]:
         t_end = clock.to_cam(duration + TAIL_S)
         n = int(np.floor(t_end * recipe.fps)) + 1
         t = np.arange(n) / recipe.fps
-        if jitter > 0:
-            t = t + np.clip(rng.normal(0, jitter, n), -0.3 / recipe.fps, 0.3 / recipe.fps)
+        if jitter > 0:  # its own stream: the rig must not depend on how many frames are rendered
+            jrng = np.random.default_rng([recipe.seed + 1, i, 7])
+            t = t + np.clip(jrng.normal(0, jitter, n), -0.3 / recipe.fps, 0.3 / recipe.fps)
             t[0] = 0.0
         t = np.round(t * 90000) / 90000  # what the container can hold exactly
         out.append(SynthCamera(cam, clock, t, audio_start))

@@ -49,6 +49,8 @@ class Scene:
         prm = self.clip.at(np.asarray(s, float))  # each (P, T, D)
         prm["betas"] = np.repeat(self.clip.betas[:, None], len(np.atleast_1d(s)), 1)
         P, T = self.n_people, len(np.atleast_1d(s))
+        if P == 0:  # a scene without people (board-only sessions)
+            return (np.zeros((0, T, len(self.body.np.v_template), 3)), np.zeros((0, T, 55, 3)))
         flat = {k: v.reshape(P * T, -1) for k, v in prm.items()}
         verts, joints = pose_mesh_np(self.body, flat)
         return verts.reshape(P, T, -1, 3), joints.reshape(P, T, -1, 3)
@@ -80,7 +82,7 @@ class Scene:
             for c0 in log.track(range(0, T, chunk), f"render {cam.name}"):
                 idx = np.arange(c0, min(c0 + chunk, T))
                 verts, _ = self.pose(s_all[idx])  # (P, n, V, 3)
-                contact, floor = self.contact_labels(verts)  # (P, n, L)
+                contact, floor = self.contact_labels(verts, s_all[idx])  # (P, n, L)
                 for j, k in enumerate(idx):
                     people = [PersonMesh(verts[p, j], faces, self.colors[p]) for p in range(P)]
                     lms = [verts[p, j, lm_ids] for p in range(P)]
@@ -107,10 +109,15 @@ class Scene:
         MaskTracks.from_masks(cam.name, (w, h), sc.frame_times, np.arange(P), masks,
                               producer=prod).save(gt / "masks" / f"{cam.name}.npz")
 
-    def contact_labels(self, verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def contact_labels(self, verts: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per landmark: person contact (within 1 cm of, or inside, another body) and floor
-        contact (within 1.5 cm of the floor with a downward normal). verts (P, n, V, 3) ->
-        two (P, n, L) float32 arrays."""
+        contact (within 1.5 cm of the floor with a downward normal). verts (P, n, V, 3) at scene
+        times s (n,) -> two (P, n, L) float32 arrays.
+
+        Person contact (an exact signed distance: the costly part) is labelled once per sample
+        of the dense motion grid (MOTION_RATE) and every camera takes the nearest sample's
+        labels (within 8 ms; cameras' VFR times never coincide, so per-frame labels would be
+        recomputed for every camera). Floor contact is exact per frame."""
         from mamma_kit.synth.render import vertex_normals
 
         P, n = verts.shape[:2]
@@ -124,7 +131,17 @@ class Scene:
                 nz = vertex_normals(verts[p, j], faces)[lm, 2]
                 floor[p, j] = (verts[p, j, lm, 2] < FLOOR_DIST) & (nz < -0.3)
         if P > 1:
-            contact[:] = person_contact(self.body, verts, CONTACT_DIST)
+            grid = self.clip.times
+            g = np.clip(np.round(np.interp(np.asarray(s, float), grid, np.arange(len(grid)))).astype(int), 0,
+                        len(grid) - 1)
+            cache = self.__dict__.setdefault("_contact_cache", {})
+            todo = sorted(set(g.tolist()) - set(cache))
+            if todo:
+                v_grid, _ = self.pose(grid[todo])
+                lab = person_contact(self.body, v_grid, CONTACT_DIST)  # (P, len(todo), L)
+                for k, gi in enumerate(todo):
+                    cache[gi] = lab[:, k]
+            contact[:] = np.stack([cache[gi] for gi in g], 1)
         return contact, floor
 
     # ---- ground-truth bodies ------------------------------------------------------------
