@@ -53,7 +53,7 @@ def align_rig(est: Rig, gt: Rig) -> tuple[Rig, dict]:
     t = mu_g - R @ mu_e
     aligned = est.transformed(R, t, s)
     return aligned, {"scale": float(s), "rotation_deg": float(np.degrees(np.arccos(
-        np.clip((np.trace(R) - 1) / 2, -1, 1)))), "translation_m": t.tolist()}
+        np.clip((np.trace(R) - 1) / 2, -1, 1)))), "translation_m": t.tolist(), "R": R.tolist()}
 
 
 def compare(est: Rig, gt: Rig, align: bool) -> dict:
@@ -89,11 +89,32 @@ def compare(est: Rig, gt: Rig, align: bool) -> dict:
     return out
 
 
+def world_frame_error(est: Rig, gt: Rig) -> dict:
+    """How far the estimated world frame is from the true one: the similarity that maps the
+    estimated camera centres and axes onto the true ones, as a tilt of Z (deg), a turn about
+    Z (deg), the origin's offset (mm) and the scale error (%)."""
+    _, info = align_rig(est, gt)
+    s, R = info["scale"], np.asarray(info["R"])
+    z = R @ np.array([0.0, 0.0, 1.0])
+    tilt = float(np.degrees(np.arccos(np.clip(z[2], -1, 1))))
+    x = R @ np.array([1.0, 0.0, 0.0])
+    yaw = float(np.degrees(np.arctan2(x[1], x[0])))
+    return {"tilt_deg": tilt, "yaw_deg": abs(yaw), "origin_mm": float(np.linalg.norm(info["translation_m"]) * 1000),
+            "scale_pct": float(abs(s - 1) * 100)}
+
+
 def evaluate_files(est_path: str | Path, gt_path: str | Path, align: bool | None = None) -> dict:
+    """Direct comparison where the world is pinned to the floor (else aligned), plus the rig's
+    own accuracy after alignment (``relative``) and, when pinned, the world frame's error."""
     est, diag = read_calibration(est_path)
     gt, _ = read_calibration(gt_path)
     pinned = diag.get("rig", {}).get("world", {}).get("source") == "floor"
-    return compare(est, gt, align if align is not None else not pinned)
+    out = compare(est, gt, align if align is not None else not pinned)
+    if pinned and align is None:
+        rel = compare(est, gt, True)
+        out["relative"] = {"cameras": rel["cameras"], "worst": rel["worst"], "alignment": rel.get("alignment")}
+        out["world_frame"] = world_frame_error(est, gt)
+    return out
 
 
 def evaluate(ws) -> dict | None:
