@@ -9,9 +9,9 @@ still-board events and intrinsic views; the world frame from the board on the fl
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from mamma_kit.calibration.detect import MIN_CORNERS, Detections, detect_video, 
 from mamma_kit.calibration.intrinsics import IntrinsicResult, calibrate_camera, cross_validate, tilt_of
 from mamma_kit.calibration.world import find_floor, up_guess, world_from_camera, world_from_floor
 from mamma_kit.core import log
+from mamma_kit.core.executor import default_workers, run_units
 from mamma_kit.core.camera import Camera, Rig, rotvec
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
@@ -101,19 +102,14 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     # 1. detection
     dets: dict[str, Detections] = dict(detections or {})
     todo = [n for n in names if n not in dets]
-    workers = min(len(todo), st.workers or os.cpu_count() or 1)
+    workers = default_workers(len(todo), st.workers)
     if workers > 1:
         # one process per camera video (decoding and ArUco search are per-frame work that
         # does not share state); the cache is read and written by the workers
-        import concurrent.futures as cf
-        import multiprocessing as mp
-
         log.info(f"detecting the board in {len(todo)} videos ({workers} processes)")
-        with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
-            futs = {n: pool.submit(_cached_detections, videos[n], spec, n, st, cache_dir, False, log.is_quiet())
-                    for n in todo}
-            for n in todo:
-                dets[n] = futs[n].result()
+        found = run_units(partial(_detect_unit, spec=spec, st=st, cache_dir=cache_dir),
+                          [(n, videos[n]) for n in todo], workers)
+        dets.update(zip(todo, found))
     else:
         for n in todo:
             dets[n] = _cached_detections(videos[n], spec, n, st, cache_dir, progress)
@@ -325,12 +321,15 @@ def write_outputs(result: CalibrationResult, out: Path, spec: BoardSpec, report_
     return figures
 
 
+def _detect_unit(unit: tuple[str, Path], spec: BoardSpec, st: Settings, cache_dir: Path | None) -> Detections:
+    name, video = unit
+    return _cached_detections(video, spec, name, st, cache_dir, False)
+
+
 def _cached_detections(video: Path, spec: BoardSpec, name: str, st: Settings, cache_dir: Path | None,
-                       progress: bool, quiet: bool | None = None) -> Detections:
+                       progress: bool) -> Detections:
     """Detections of one video, reused from ``cache_dir`` when the video (size, mtime), the
     board spec and the detection settings are unchanged."""
-    if quiet is not None:  # in a worker process
-        log.set_quiet(quiet)
     from mamma_kit.core.io import read_npz, sha256_json, write_npz
 
     key = None

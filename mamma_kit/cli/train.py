@@ -23,14 +23,24 @@ def train_cmd(
                                                                              "checkpoint (continue with --resume)."),
     for_minutes: Optional[float] = typer.Option(None, "--for-minutes", help="Stop this run after M minutes with a "
                                                                            "checkpoint (continue with --resume)."),
+    export: bool = typer.Option(False, "--export", help="Write weights + model card from the checkpoint as it "
+                                                        "stands (intermediate), without training."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
     """Train MammaNet on `mamma-kit synth --crops` shards; checkpoints every few hundred steps, evaluates on
     held-out shards, and writes <arch>.pt with model_card.md/json in the output folder."""
+    from mamma_kit.landmarks.train import export as export_weights
     from mamma_kit.landmarks.train import train
 
     setup(quiet, json_out)
+    if export:
+        summary = export_weights(config, out=out, device=device)
+        if json_out:
+            emit_json(summary)
+        else:
+            log.info(f"exported step {summary['steps']}: {summary['weights']}")
+        return
     summary = train(config, resume=resume, device=device, out=out, steps=steps, for_steps=for_steps,
                     for_minutes=for_minutes)
     if json_out:

@@ -68,16 +68,19 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def _plain(obj: Any) -> Any:
-    """Convert numpy scalars/arrays and paths into JSON/TOML-friendly Python values."""
+def _plain(obj: Any, json_safe: bool = False) -> Any:
+    """Convert numpy scalars/arrays and paths into JSON/TOML-friendly Python values
+    (``json_safe``: NaN and infinities become null, which JSON has instead)."""
     if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items() if v is not None}
+        return {str(k): _plain(v, json_safe) for k, v in obj.items() if v is not None}
     if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
+        return [_plain(v, json_safe) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
+        return _plain(obj.tolist(), json_safe)
     if isinstance(obj, np.generic):
-        return obj.item()
+        obj = obj.item()
+    if json_safe and isinstance(obj, float) and not np.isfinite(obj):
+        return None
     if isinstance(obj, Path):
         return str(obj)
     return obj
@@ -99,7 +102,7 @@ def read_toml(path: str | os.PathLike, what: str = "TOML file") -> dict:
 
 
 def to_json(data: Any, indent: int | None = 2) -> str:
-    return json.dumps(_plain(data), indent=indent, allow_nan=False, default=str)
+    return json.dumps(_plain(data, json_safe=True), indent=indent, allow_nan=False, default=str)
 
 
 def write_json(path: str | os.PathLike, data: Any) -> Path:

@@ -148,9 +148,19 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
                             "calibrate and run landmarks on the same videos")
     pmap, n2 = _person_map(ws, tracks)
     notes += n2
-    person_ids = sorted({p for m in pmap.values() for p in m.values()})
+    views_of: dict[int, set] = {}
+    for cam, m in pmap.items():
+        for p in m.values():
+            views_of.setdefault(p, set()).add(cam)
+    # one view leaves a body's depth to the shape prior alone: not a multi-view fit
+    single = sorted(p for p, v in views_of.items() if len(v) < 2) if len(names) > 1 else []
+    if single:
+        notes.append(f"person(s) {', '.join(map(str, single))} matched in one view only: not fitted")
+    person_ids = sorted(p for p in views_of if p not in single)
     if not person_ids:
-        raise UserError("no person is matched in any view", "check identities.json (`mamma-kit match`)")
+        raise UserError("no person is matched in two or more views" if single else "no person is matched in any view",
+                        "check identities.json and report/match/affinities.png (`mamma-kit match`): the landmarks "
+                        "or the calibration may be off")
 
     frame_camera = reference if reference in names else names[0]
     ref_times = {n: clocks[n].to_ref(tracks[n].frame_times) for n in names}

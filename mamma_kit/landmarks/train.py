@@ -336,6 +336,33 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
     return _finish(model, tc, train_set, val_set, step, state, final, out_dir, device)
 
 
+def export(config_path: str | Path, out: str | None = None, device: str = "cpu") -> dict:
+    """Weights + model card from a run's checkpoint as it stands (a run still in progress, or
+    one stopped early): evaluated on the held-out shards, marked as step N of M in the card."""
+    tc = load_train_config(config_path, out)
+    s = tc.settings
+    ckpt_path = Path(s.out) / "checkpoint.pt"
+    if not ckpt_path.is_file():
+        raise UserError(f"no training checkpoint in {s.out}", "train first: `mamma-kit train CONFIG`")
+    if s.threads:
+        torch.set_num_threads(s.threads)
+    ck = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+    if ck.get("format") != CHECKPOINT_FORMAT:
+        raise UserError(f"{ckpt_path} is not a mamma-kit training checkpoint", "choose another output folder")
+    cfg = MammaNetConfig.from_dict(ck["model_config"])
+    tc.model = cfg
+    model = MammaNet(cfg).to(device)
+    model.load_state_dict(ck["model"])
+    step, state = int(ck["step"]), json.loads(ck["state"])
+    train_set = CropShards(tc.train_dirs)
+    val_set = CropShards(tc.val_dirs) if tc.val_dirs else None
+    final = evaluate_crops(model, val_set, s.eval_samples, s.batch, device) if val_set is not None else None
+    if final is not None:
+        final["step"] = step
+    state = {**state, "intermediate": {"step": step, "of": s.steps}}
+    return _finish(model, tc, train_set, val_set, step, state, final, Path(s.out), device)
+
+
 def _finish(model, tc: TrainConfig, train_set, val_set, step, state, final, out_dir: Path, device) -> dict:
     cfg = model.cfg
     card = {
@@ -349,6 +376,8 @@ def _finish(model, tc: TrainConfig, train_set, val_set, step, state, final, out_
                      "config_file": str(tc.path), "config_sha256": sha256_file(tc.path), "settings": tc.describe()},
         "metrics": final, "evals": state["evals"],
     }
+    if state.get("intermediate"):
+        card["training"]["intermediate"] = state["intermediate"]
     weights = save_weights(out_dir / f"{cfg.name}.pt", model.cpu(), train_set.landmark_set, card,
                            half=tc.settings.half_weights)
     write_json(out_dir / "model_card.json", card)
@@ -372,7 +401,9 @@ def model_card_markdown(card: dict) -> str:
         f"queries: {m['config']['queries']}; mask input: {m['config']['use_mask']}",
         f"- trained by `mamma-kit train {t['config_file']}` (sha256 {t['config_sha256'][:12]}), mamma-kit {t['mamma_kit']}, "
         f"torch {t['torch']} on {t['device']} ({t['threads']} threads)",
-        f"- {t['steps']} steps x batch {t['batch']} = {t['samples_seen']} samples in {t['seconds'] / 3600:.2f} h", "",
+        f"- {t['steps']} steps x batch {t['batch']} = {t['samples_seen']} samples in {t['seconds'] / 3600:.2f} h"
+        + (f" (an intermediate checkpoint: step {t['intermediate']['step']} of a {t['intermediate']['of']}-step "
+           "schedule)" if t.get("intermediate") else ""), "",
         "## Data", "",
         f"- train: {d['train']['samples']} crops from {', '.join(d['train']['dirs'])}; recipes {d['train']['recipes']}, "
         f"seeds {d['train']['seeds']}",
@@ -392,5 +423,5 @@ def model_card_markdown(card: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["TrainConfig", "TrainSettings", "load_train_config", "train", "evaluate_crops", "lr_at", "make_batch",
+__all__ = ["TrainConfig", "TrainSettings", "load_train_config", "train", "export", "evaluate_crops", "lr_at", "make_batch",
            "model_card_markdown"]

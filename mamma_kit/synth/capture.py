@@ -20,6 +20,7 @@ from mamma_kit.core import log
 from mamma_kit.core.calibfile import write_calibration
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import write_json, write_toml
+from mamma_kit.core.executor import run_units
 from mamma_kit.core.manifest import producer
 from mamma_kit.core.timingfile import write_timing
 from mamma_kit.core.tracks import LandmarkTracks, MaskTracks, rle_encode
@@ -43,8 +44,10 @@ class SynthResult:
 
 
 def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None, frames: int | None = None,
-               scale: float | None = None, board: bool = True, overwrite: bool = True) -> SynthResult:
-    """Render a recipe into a capture workspace at ``out``."""
+               scale: float | None = None, board: bool = True, overwrite: bool = True,
+               workers: int | None = None) -> SynthResult:
+    """Render a recipe into a capture workspace at ``out`` (cameras in ``workers`` processes,
+    default one per CPU)."""
     from mamma_kit.synth.scene import build_scene
 
     recipe = load_recipe(recipe_ref, seed)
@@ -72,11 +75,12 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
     t1 = time.perf_counter()
     gt = out / "gt"
     ext = ".mov" if recipe.audio.get("codec") == "pcm" else ".mp4"
+    units = [(scene, sc, out / "videos" / f"{sc.camera.name}{ext}", audio.get(sc.camera.name), recipe, gt)
+             for sc in cams]
+    # one camera per process: rendering, labelling and encoding share nothing between cameras
+    run_units(_render_camera, units, workers)
     for sc in cams:
-        name = sc.camera.name
-        vpath = out / "videos" / f"{name}{ext}"
-        scene.render_camera(sc, vpath, audio.get(name), recipe, gt)
-        paths["videos"][name] = str(vpath.relative_to(out))
+        paths["videos"][sc.camera.name] = f"videos/{sc.camera.name}{ext}"
     times["render"] = round(time.perf_counter() - t1, 2)
 
     # ---- calibration session -------------------------------------------------------------
@@ -110,6 +114,11 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
     result = SynthResult(out, recipe, cams, paths, times)
     write_json(gt / "synth.json", result.summary())
     return result
+
+
+def _render_camera(unit) -> None:
+    scene, sc, vpath, audio, recipe, gt = unit
+    scene.render_camera(sc, vpath, audio, recipe, gt)
 
 
 def _render_audio(recipe: Recipe, cams: list[SynthCamera]) -> dict:

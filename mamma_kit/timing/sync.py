@@ -39,7 +39,7 @@ DEFAULTS: dict = {
     "method": "auto",
     "clap": {},
     "ltc": {"fps": 0.0, "min_fraction": 0.5},
-    "check": {"agreement_tolerance_ms": 5.0, "max_travel_ms": 30.0},
+    "check": {"agreement_tolerance_ms": 5.0, "max_travel_ms": 30.0, "estimated_travel_ms": 10.0},
 }
 
 
@@ -320,7 +320,11 @@ def _agreement(by_method, media, chosen, check, clap_res, warnings, reference) -
     out: dict[str, dict] = {}
     base = by_method[chosen]
     tol = float(check.get("agreement_tolerance_ms", 5.0))
-    travel = 0.0 if (clap_res is not None and clap_res.diagnostics.get("sound_travel_corrected")) \
+    # what the clap offsets may still carry of the sound's travel: nothing with known clap
+    # positions; with positions estimated from the clocks (one clap leaves them nearly free),
+    # up to estimated_travel_ms; uncorrected, up to max_travel_ms
+    where = clap_res.diagnostics.get("clap_positions") if clap_res is not None else None
+    travel = 0.0 if where == "known" else float(check.get("estimated_travel_ms", 10.0)) if where == "estimated" \
         else float(check.get("max_travel_ms", 30.0))
     for k, cl in by_method.items():
         if k == chosen:
