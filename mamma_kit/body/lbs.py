@@ -201,8 +201,55 @@ def skin_shared_points(points_gn3: torch.Tensor, A_grj12: torch.Tensor, W_nj: to
     return (M @ Am).reshape(G, N, R, 3).permute(0, 2, 1, 3)
 
 
+#: vertices skinned together: each group's vertices depend on few joints (a limb and its
+#: neighbours), so per group the blend is a small dense GEMM over just those joints
+PART_GROUPS = (("head", "neck"), ("torso", "pelvis"), ("left_upper_arm", "left_lower_arm", "left_hand"),
+               ("right_upper_arm", "right_lower_arm", "right_hand"),
+               ("left_upper_leg", "left_lower_leg", "left_foot"), ("right_upper_leg", "right_lower_leg", "right_foot"))
+
+
+@dataclass
+class SkinBlocks:
+    """Vertices grouped with the joints they depend on. order (N,): vertices by group;
+    inverse (N,); per group b: verts[b] (n_b,) and joints[b] (j_b,) indices and W[b] (n_b, j_b)."""
+
+    order: torch.Tensor
+    inverse: torch.Tensor
+    verts: list[torch.Tensor]
+    joints: list[torch.Tensor]
+    W: list[torch.Tensor]
+
+    @classmethod
+    def build(cls, W_nj: torch.Tensor, part_n: np.ndarray) -> "SkinBlocks":
+        names = list(sk.PART_NAMES)
+        group_of = np.zeros(len(names), np.int64) + len(PART_GROUPS)
+        for g, members in enumerate(PART_GROUPS):
+            for m in members:
+                if m in names:
+                    group_of[names.index(m)] = g
+        grp = group_of[np.asarray(part_n)]
+        Wn = W_nj.numpy()
+        verts, joints, Ws = [], [], []
+        for g in np.unique(grp):
+            v = np.flatnonzero(grp == g)
+            j = np.flatnonzero((Wn[v] > 0).any(0))
+            verts.append(torch.as_tensor(v))
+            joints.append(torch.as_tensor(j))
+            Ws.append(W_nj[v][:, j].contiguous())
+        order = torch.cat(verts)
+        return cls(order, torch.argsort(order), verts, joints, Ws)
+
+
+def skin_shared_blocks(points_gn3: torch.Tensor, A_grj12: torch.Tensor, blocks: SkinBlocks) -> torch.Tensor:
+    """skin_shared_points, one small GEMM per vertex group over only the joints it uses
+    (about a fifth of the dense product's work for SMPL-X-like weights). Returns (G, R, N, 3)."""
+    outs = [skin_shared_points(points_gn3.index_select(1, v), A_grj12.index_select(2, j), W)
+            for v, j, W in zip(blocks.verts, blocks.joints, blocks.W)]
+    return torch.cat(outs, 2).index_select(2, blocks.inverse)
+
+
 def skin(points: torch.Tensor, A_j12: torch.Tensor, W_nj: torch.Tensor, idx_nk: torch.Tensor | None = None,
-         w_nk: torch.Tensor | None = None) -> torch.Tensor:
+         w_nk: torch.Tensor | None = None, blocks: SkinBlocks | None = None) -> torch.Tensor:
     """Posed points (*lead, N, 3) from rest points (*vlead, N, 3) and transforms (*lead, J, 12).
 
     When the rest points are shared by trailing leading dims (betas (P, 1, 16) with poses
@@ -219,7 +266,8 @@ def skin(points: torch.Tensor, A_j12: torch.Tensor, W_nj: torch.Tensor, idx_nk: 
     if shared and idx_nk is None:
         G, R = math.prod(lead[:k]), math.prod(lead[k:])
         pts = points.reshape(G, N, 3)
-        out = skin_shared_points(pts, A_j12.reshape(G, R, *A_j12.shape[-2:]), W_nj)
+        A = A_j12.reshape(G, R, *A_j12.shape[-2:])
+        out = skin_shared_blocks(pts, A, blocks) if blocks is not None else skin_shared_points(pts, A, W_nj)
         return out.reshape(*lead, N, 3)
     if idx_nk is not None:
         return skin_sparse(points, A_j12, idx_nk, w_nk)
@@ -242,6 +290,7 @@ class RestrictedBody:
     skin_idx: torch.Tensor
     skin_w: torch.Tensor
     W: torch.Tensor
+    blocks: SkinBlocks | None = None
 
     @classmethod
     def build(cls, model, ids: np.ndarray) -> "RestrictedBody":
@@ -256,7 +305,8 @@ class RestrictedBody:
                    shapedirs=model.shapedirs[it].contiguous(),
                    exprdirs=None if model.exprdirs is None else model.exprdirs[it].contiguous(),
                    posedirs=pd, skin_idx=model.skin_idx[it, :k].contiguous(), skin_w=w[:, :k].contiguous(),
-                   W=model.weights_dense[it].contiguous())
+                   W=model.weights_dense[it].contiguous(),
+                   blocks=SkinBlocks.build(model.weights_dense[it], np.asarray(model.vertex_part)[np.asarray(ids)]))
 
 
 def _pose(model, rb: RestrictedBody | None, params: Mapping[str, object], sparse: bool):
@@ -285,7 +335,8 @@ def _pose(model, rb: RestrictedBody | None, params: Mapping[str, object], sparse
         pd = data.posedirs if rb is not None else model.posedirs.reshape(-1, feat.shape[-1]).T
         v = v + (feat @ pd).reshape(*lead, -1, 3)
     W = data.W if rb is not None else model.weights_dense
-    verts = skin(v, A, W, data.skin_idx, data.skin_w) if sparse else skin(v, A, W)
+    blocks = rb.blocks if rb is not None else model.skin_blocks()
+    verts = skin(v, A, W, data.skin_idx, data.skin_w) if sparse else skin(v, A, W, blocks=blocks)
     if "transl" in p:
         t = p["transl"].unsqueeze(-2)
         verts = verts + t

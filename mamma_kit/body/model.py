@@ -184,6 +184,14 @@ class BodyModel:
         return replace(self, landmarks=landmarks, _cache={})
 
     # ---- cached derived objects (built on first use) -----------------------------------
+    def skin_blocks(self):
+        """Vertex groups for block-sparse skinning of the full mesh (lbs.SkinBlocks), cached."""
+        from mamma_kit.body.lbs import SkinBlocks
+
+        if "skin_blocks" not in self._cache:
+            self._cache["skin_blocks"] = SkinBlocks.build(self.weights_dense, self.vertex_part)
+        return self._cache["skin_blocks"]
+
     def restricted(self, vertex_ids: np.ndarray | None = None):
         """Per-vertex-set data for restricted LBS (see lbs.RestrictedBody); default: the landmarks.
 

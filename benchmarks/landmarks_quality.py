@@ -1,0 +1,140 @@
+"""MammaNet quality on held-out synthetic captures: the embedded model vs the single-query baseline.
+
+    nice -n 10 python benchmarks/landmarks_quality.py [--root /tmp/mk_lm_bench] [--threads 2]
+        [--weights mamma_kit/landmarks/weights/embedded.pt] [--baseline .../embedded-single.pt]
+        [--crops data/crops/val]
+
+Held out: captures rendered by `mamma-kit synth` from recipes and seeds never used for the
+training crops (those came from `synth --crops` scenes; these are whole videos: H.264, the
+recipes' lenses, distances and motions), cached under --root:
+
+  duo     iphone-outdoor-duo, seed 101, 4 cameras at 960x540: two people dancing hand in hand
+  studio  studio-16cam-solo, seed 102, the first 8 of 16 cameras at 480x270: one person, varied motion
+
+Each model runs through the real `mamma-kit landmarks` on ground-truth person masks (`track
+--backend gt`, so the figures are the network's, not the tracker's) and `mamma-kit eval`
+compares with the renderer's landmarks. Printed per capture and model: mean 2D error in % of
+the person's box height (all landmarks and visible ones) and px, visibility accuracy, person-
+and floor-contact ROC AUC. With --crops, the same metrics on held-out training-style crops
+(network input resolution, exact masks). Targets (issue): visible error <= 3 % of box height,
+visibility accuracy >= 90 %, contact AUC >= 0.85 (person) and >= 0.9 (floor), and better than
+the single-query baseline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CAPTURES = {
+    # name: (recipe, seed, scale, frames, cameras kept)
+    "duo": ("iphone-outdoor-duo", 101, 0.5, 45, None),
+    "studio": ("studio-16cam-solo", 102, 0.25, 30, 8),
+}
+KEYS = ("error_pct_box_visible", "error_pct_box_all", "error_px_visible", "visibility_accuracy", "contact_auc",
+        "floor_contact_auc")
+
+
+def mk(*args, capture: bool = False) -> str:
+    cmd = [sys.executable, "-c", "import sys; from mamma_kit.cli.app import main; main(sys.argv[1:])",
+           *map(str, args)]
+    r = subprocess.run(cmd, check=True, stdout=subprocess.PIPE if capture else None, text=True)
+    return r.stdout if capture else ""
+
+
+def prepare(root: Path, name: str) -> Path:
+    recipe, seed, scale, frames, keep = CAPTURES[name]
+    ws = root / name
+    if not (ws / "capture.toml").is_file():
+        if ws.exists():
+            shutil.rmtree(ws)
+        print(f"rendering {name}: {recipe} seed {seed}, scale {scale}, {frames} frames", flush=True)
+        mk("synth", recipe, "--out", ws, "--seed", seed, "--scale", scale, "--frames", frames, "--no-board", "-q")
+    if keep:
+        from mamma_kit.core.io import read_toml, write_toml
+
+        cap = read_toml(ws / "capture.toml")
+        names = list(cap["cameras"])
+        if len(names) > keep:
+            cap["cameras"] = {n: cap["cameras"][n] for n in names[:keep]}
+            write_toml(ws / "capture.toml", cap)
+    mk("track", ws, "--backend", "gt", "--no-pictures", "-q")
+    return ws
+
+
+def evaluate(ws: Path, weights: Path, threads: int) -> dict:
+    t0 = time.perf_counter()
+    mk("landmarks", ws, "--weights", weights, "--threads", threads, "--force", "-q")
+    secs = time.perf_counter() - t0
+    out = json.loads(mk("eval", ws, "--only", "landmarks", "--json", capture=True))["landmarks"]
+    out["seconds"] = secs
+    return out
+
+
+def crops_metrics(weights: Path, crops: Path, n: int, threads: int) -> dict:
+    import torch
+
+    from mamma_kit.landmarks.data import CropShards
+    from mamma_kit.landmarks.train import evaluate_crops
+    from mamma_kit.landmarks.weights import load_model
+
+    torch.set_num_threads(threads)
+    lm = load_model(weights)
+    return evaluate_crops(lm.model, CropShards([crops]), n)
+
+
+def fmt(m: dict) -> str:
+    def f(k, nd=2, pct=False):
+        v = m.get(k)
+        return "  n/a" if v is None else (f"{100 * v:5.1f}%" if pct else f"{v:.{nd}f}")
+    return (f"visible {f('error_pct_box_visible')} % box ({f('error_px_visible', 1)} px), all "
+            f"{f('error_pct_box_all')} %, visibility {f('visibility_accuracy', pct=True)}, contact AUC "
+            f"{f('contact_auc', 3)}, floor AUC {f('floor_contact_auc', 3)}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--root", type=Path, default=Path("/tmp/mk_lm_bench"))
+    ap.add_argument("--weights", type=Path, default=REPO / "mamma_kit/landmarks/weights/embedded.pt")
+    ap.add_argument("--baseline", type=Path, default=REPO / "mamma_kit/landmarks/weights/embedded-single.pt")
+    ap.add_argument("--captures", default="duo,studio")
+    ap.add_argument("--crops", type=Path, default=None, help="held-out crop shards (e.g. data/crops/val)")
+    ap.add_argument("--crop-samples", type=int, default=1024)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args()
+    models = {"embedded": a.weights, "single-query": a.baseline}
+    for k, p in list(models.items()):
+        if not p.is_file():
+            print(f"{k}: {p} not found, skipped")
+            models.pop(k)
+    print(f"command: {' '.join(sys.argv)}")
+    print(f"load average before: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
+    results: dict = {}
+    for name in a.captures.split(","):
+        ws = prepare(a.root, name)
+        for mname, w in models.items():
+            m = evaluate(ws, w, a.threads)
+            results.setdefault(name, {})[mname] = m
+            print(f"{name:7s} {mname:13s} {fmt(m)}  [{m['instances']} person-frames, {m['seconds']:.0f} s]",
+                  flush=True)
+    if a.crops is not None:
+        for mname, w in models.items():
+            m = crops_metrics(w, a.crops, a.crop_samples, a.threads)
+            results.setdefault("crops", {})[mname] = m
+            print(f"crops   {mname:13s} {fmt(m)}  [{m['instances']} held-out crops at the network's input size]",
+                  flush=True)
+    print(f"load average after: {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
+    if a.json:
+        a.json.write_text(json.dumps(results, indent=2, default=str))
+
+
+if __name__ == "__main__":
+    main()
