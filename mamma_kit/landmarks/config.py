@@ -9,7 +9,8 @@ Every MammaNet in mamma-kit is built from a :class:`MammaNetConfig` by
     Its state dict has exactly the 282 names and shapes of the official Lightning checkpoint.
 ``embedded``
     The CPU default shipped in the package: d 128 at 192 x 144, patch 12 (16 x 12 tokens),
-    6 encoder layers, 2 decoder layers over 512 queries, mask input.
+    6 encoder layers, 2 decoder layers over 512 queries, mask input, and a dense soft-argmax
+    head whose positions the decoder refines (see ``dense_head``).
 ``embedded-256``
     A larger CPU model: d 192 at 256 x 192, patch 16, 6 encoder and 3 decoder layers.
 ``embedded-single`` / ``official-single``
@@ -54,6 +55,10 @@ class MammaNetConfig:
     dec_ffn: int = 512
     dec_eps: float = 1e-5
     n_landmarks: int = 512
+    # a dense head on the image tokens (one logit per token and landmark, soft-argmax over the
+    # tokens) that the decoder's positions refine: trains in hours on a CPU where the decoder
+    # alone converges slowly; not in the official architecture
+    dense_head: bool = False
     # pre-processing: "official" d = max(box) / (2 * W_in); "scale" d = true downscale factor
     antialias: str = "scale"
 
@@ -117,6 +122,7 @@ OFFICIAL = MammaNetConfig(
 EMBEDDED = MammaNetConfig(
     name="embedded", input_hw=(192, 144), patch=12, dim=128, depth=6, heads=4, mlp_dim=512,
     use_mask=True, mask_channels=(4, 16), mask_strides=(4, 3), dec_layers=2, dec_heads=4, dec_ffn=512,
+    dense_head=True,
 )
 
 EMBEDDED_256 = MammaNetConfig(

@@ -4,6 +4,7 @@
   min(|mu - mu'|^2 / (2 sigma^2), 25) + 2 log sigma (2 = one log sigma per axis), weight 100;
 - visibility: binary cross-entropy, weight 1;
 - person contact and floor contact: sigmoid focal loss (alpha 0.9, gamma 2), weight 1 each;
+- models with a dense head (config ``dense_head``): L1 of its soft-argmax positions, weight 10;
 - every term weighted per landmark (``landmark_weights``): 1 inside the crop, exp(-2 |r - 1|) outside
   with r = max(|n_x|, |n_y|) the landmark's normalised Chebyshev radius (the crop border is r = 1);
   hand and foot landmarks doubled when their part is at least partly inside the crop.
@@ -28,6 +29,7 @@ class LossWeights:
     visibility: float = 1.0
     contact: float = 1.0
     floor_contact: float = 1.0
+    dense: float = 10.0  # L1 (normalised units) of the dense head's soft-argmax, when the model has one
     nll_clip: float = 25.0
     focal_alpha: float = 0.9
     focal_gamma: float = 2.0
@@ -86,5 +88,10 @@ def mammanet_loss(out: dict, batch: dict, weights: LossWeights = LossWeights(),
     con = _wmean(sigmoid_focal(out["contact_logit"], batch["contact"], weights.focal_alpha, weights.focal_gamma), w)
     flo = _wmean(sigmoid_focal(out["floor_logit"], batch["floor_contact"], weights.focal_alpha, weights.focal_gamma), w)
     total = weights.xy * nll + weights.visibility * vis + weights.contact * con + weights.floor_contact * flo
-    return total, {"loss": float(total.detach()), "nll": float(nll.detach()), "vis": float(vis.detach()),
-                   "contact": float(con.detach()), "floor": float(flo.detach())}
+    terms = {"nll": float(nll.detach()), "vis": float(vis.detach()), "contact": float(con.detach()),
+             "floor": float(flo.detach())}
+    if "xy_dense" in out and weights.dense > 0:
+        dense = _wmean((out["xy_dense"] - batch["xy_n"]).abs().sum(-1), w)
+        total = total + weights.dense * dense
+        terms["dense"] = float(dense.detach())
+    return total, {"loss": float(total.detach()), **terms}

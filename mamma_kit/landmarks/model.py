@@ -30,8 +30,9 @@ from torch import nn
 from mamma_kit.landmarks.config import MammaNetConfig
 
 
-class MammaNetOutput(TypedDict):
+class MammaNetOutput(TypedDict, total=False):
     xy: torch.Tensor  # (B, L, 2) normalised crop coordinates in [-1, 1]
+    xy_dense: torch.Tensor  # (B, L, 2) the dense head's soft-argmax (configs with dense_head)
     log_sigma: torch.Tensor  # (B, L) log sigma in normalised units (1 = half the crop width / height)
     vis_logit: torch.Tensor  # (B, L)
     contact_logit: torch.Tensor  # (B, L)
@@ -206,7 +207,9 @@ class LandmarkDecoder(nn.Module):
         self.contact_prob = nn.Linear(d, per)
         self.floor_contact_prob = nn.Linear(d, per)
 
-    def forward(self, memory_bdhw: torch.Tensor, pos_1nd: torch.Tensor) -> MammaNetOutput:
+    def forward(self, memory_bdhw: torch.Tensor, pos_1nd: torch.Tensor,
+                xy_base: torch.Tensor | None = None) -> MammaNetOutput:
+        """``xy_base`` (B, L, 2): positions the decoder's outputs are offsets to (dense head)."""
         B = memory_bdhw.shape[0]
         memory = memory_bdhw.flatten(2).permute(2, 0, 1)  # (N, B, D)
         pos = pos_1nd.transpose(0, 1)  # (N, 1, D)
@@ -215,11 +218,34 @@ class LandmarkDecoder(nn.Module):
         L = self.n_landmarks
         lm = self.landmarks(hs).reshape(B, L, 3)
         return MammaNetOutput(
-            xy=lm[..., :2], log_sigma=lm[..., 2],
+            xy=lm[..., :2] if xy_base is None else xy_base + lm[..., :2], log_sigma=lm[..., 2],
             vis_logit=self.vis_prob(hs).reshape(B, L),
             contact_logit=self.contact_prob(hs).reshape(B, L),
             floor_logit=self.floor_contact_prob(hs).reshape(B, L),
         )
+
+
+class DenseHead(nn.Module):
+    """Per landmark, a logit on every image token; the landmark is the softmax-weighted mean of
+    the tokens' centres (integral regression). Dense supervision of every token teaches the
+    backbone where each landmark is far faster than the decoder's cross-attention learns it."""
+
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        self.logits = nn.Linear(cfg.dim, cfg.n_landmarks)
+        gh, gw = cfg.grid_hw
+        h, w = cfg.input_hw
+        p, pad = cfg.patch, cfg.patch_padding
+        # token centres in normalised crop units: token c spans input px [c p - pad, (c + 1) p - pad)
+        cx = ((torch.arange(gw) + 0.5) * p - pad) / w * 2 - 1
+        cy = ((torch.arange(gh) + 0.5) * p - pad) / h * 2 - 1
+        yy, xx = torch.meshgrid(cy, cx, indexing="ij")
+        self.register_buffer("centres_n2", torch.stack([xx, yy], -1).reshape(-1, 2), persistent=False)
+
+    def forward(self, memory_bdhw: torch.Tensor) -> torch.Tensor:
+        tokens = memory_bdhw.flatten(2).transpose(1, 2)  # (B, N, D)
+        prob = torch.softmax(self.logits(tokens), dim=1)  # (B, N, L): over tokens
+        return torch.einsum("bnl,nc->blc", prob, self.centres_n2)
 
 
 # ---- the network ----------------------------------------------------------------------------------
@@ -237,6 +263,7 @@ class MammaNet(nn.Module):
         self.backbone = ViT(cfg)
         self.decoder = LandmarkDecoder(cfg)
         self.mask_downscaling = MaskEmbed(cfg) if cfg.use_mask else None
+        self.dense = DenseHead(cfg) if cfg.dense_head else None
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
@@ -273,7 +300,13 @@ class MammaNet(nn.Module):
         return f
 
     def forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
-        return self.decoder(self.features(image, mask), self.backbone.pos_embed[:, 1:])
+        f = self.features(image, mask)
+        if self.dense is None:
+            return self.decoder(f, self.backbone.pos_embed[:, 1:])
+        xy_dense = self.dense(f)
+        out = self.decoder(f, self.backbone.pos_embed[:, 1:], xy_base=xy_dense)
+        out["xy_dense"] = xy_dense
+        return out
 
 
 def build_model(cfg: MammaNetConfig | str, device: str | torch.device = "cpu", **overrides) -> MammaNet:

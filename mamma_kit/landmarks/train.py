@@ -79,6 +79,7 @@ class TrainSettings:
     eval_every: int = 2000
     eval_samples: int = 512
     half_weights: bool = False
+    init_from: str = ""  # a training checkpoint or weight file whose matching tensors start a new run
 
 
 @dataclass
@@ -194,6 +195,28 @@ def evaluate_crops(model: MammaNet, shards: CropShards, n: int, batch: int = 16,
     return m
 
 
+def warm_start(model: MammaNet, src: Path) -> dict:
+    """Copy every tensor of ``src`` (a training checkpoint or a weight file) whose name and shape
+    match into ``model``; the rest keep their fresh initialisation. A model that gains a dense
+    head starts its decoder's position outputs at zero (they become offsets to the dense head)."""
+    if not src.is_file():
+        raise UserError(f"[train] init_from {src} not found", "point it at a checkpoint.pt or a weights .pt")
+    obj = torch.load(src, map_location="cpu", weights_only=True)
+    sd = obj.get("model") or obj.get("state_dict") or obj
+    own = model.state_dict()
+    same = {k: v.float() for k, v in sd.items() if k in own and tuple(v.shape) == tuple(own[k].shape)}
+    model.load_state_dict(same, strict=False)
+    src_cfg = obj.get("model_config") or obj.get("config") or {}
+    if model.cfg.dense_head and not src_cfg.get("dense_head", False):
+        with torch.no_grad():
+            last = model.decoder.landmarks.layers[-1]
+            last.weight.view(-1, 3, last.weight.shape[-1])[:, :2] = 0
+            last.bias.view(-1, 3)[:, :2] = 0
+    info = {"source": str(src), "tensors_copied": len(same), "tensors_new": sorted(set(own) - set(same))}
+    log.info(f"warm start from {src}: {len(same)} of {len(own)} tensors copied")
+    return info
+
+
 def _save_checkpoint(path: Path, model, opt, step: int, tc: TrainConfig, state: dict) -> None:
     obj = {"format": CHECKPOINT_FORMAT, "step": step, "model_config": tc.model.to_dict(),
            "model": model.state_dict(), "optimizer": opt.state_dict(), "state": json.dumps(state)}
@@ -252,6 +275,8 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
         log.info(f"resuming {ckpt_path} at step {step}")
     elif resume:
         log.info(f"no checkpoint in {out_dir}: starting a new run")
+    if step == 0 and s.init_from:
+        state["init_from"] = warm_start(model, Path(s.init_from))
     part_l = torch.as_tensor(train_set.landmark_parts, device=device) if train_set.landmark_parts is not None else None
     doubled = _doubled_ids(train_set)
     log_path = out_dir / "log.jsonl"
@@ -311,8 +336,9 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
                 with open(log_path, "a") as f:
                     f.write(json.dumps(rec) + "\n")
                 log.info(f"step {step}/{s.steps} loss {avg['loss']:.4f} (nll {avg['nll']:.4f} vis {avg['vis']:.4f} "
-                         f"contact {avg['contact']:.4f} floor {avg['floor']:.4f}) {rate:.1f} samples/s, "
-                         f"eta {eta / 60:.1f} min")
+                         f"contact {avg['contact']:.4f} floor {avg['floor']:.4f}"
+                         + (f" dense {avg['dense']:.4f}" if "dense" in avg else "")
+                         + f") {rate:.1f} samples/s, eta {eta / 60:.1f} min")
                 running, t_log, seen_log = {}, time.perf_counter(), 0
             if s.eval_every and step % s.eval_every == 0 and step < s.steps:
                 run_eval(step)

@@ -585,11 +585,12 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
     traj = trajectory or plan_session(rig, spec, seed=seed, duration_s=duration_s, closeups=closeups,
                                       n_closeups=n_closeups, floor_pose=floor_pose, tremor_m=tremor_m, **plan_kw)
     clocks = dict(clocks or {})
-    rng = np.random.default_rng(seed + 1000)
     tex = _Texture(spec)
     result: dict = {"videos": {}, "frame_times": {}, "ref_times": {}, "visible": {}}
     names = list(cameras) if cameras is not None else rig.names
-    for ci, name in enumerate(names):
+    for name in names:
+        ci = rig.names.index(name)  # seeds depend on the camera, not on which others are rendered
+        rng = np.random.default_rng([seed + 1000, ci])
         cam = rig[name]
         clk = clocks.get(name, ClockModel())
         if frame_times is not None and name in frame_times:

@@ -86,7 +86,7 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
     # ---- calibration session -------------------------------------------------------------
     if board and recipe.board is not None:
         t1 = time.perf_counter()
-        paths["board_videos"] = _render_board(recipe, cams, out, scene)
+        paths["board_videos"] = _render_board(recipe, cams, out, scene, workers)
         times["board"] = round(time.perf_counter() - t1, 2)
 
     # ---- ground truth and capture.toml ---------------------------------------------------
@@ -141,9 +141,8 @@ def _render_audio(recipe: Recipe, cams: list[SynthCamera]) -> dict:
                                   reverb=reverb, ltc=ltc, seed=recipe.seed + 7)
 
 
-def _render_board(recipe: Recipe, cams: list[SynthCamera], out: Path, scene=None) -> dict:
+def _render_board(recipe: Recipe, cams: list[SynthCamera], out: Path, scene=None, workers: int | None = None) -> dict:
     from mamma_kit.calibration.board import load_board_spec
-    from mamma_kit.synth.board import render_board_session
     from mamma_kit.synth.render import CameraRenderer
 
     spec = load_board_spec(str(recipe.board.get("spec", "charuco-a1")))
@@ -151,16 +150,24 @@ def _render_board(recipe: Recipe, cams: list[SynthCamera], out: Path, scene=None
     if recipe.board.get("background", "scene") == "scene" and scene is not None:
         # the board is shown where the capture happens, by cameras that do not move
         backgrounds = {c.camera.name: CameraRenderer(c.camera, scene.env).static_image() for c in cams}
-    info = render_board_session(out / "board", rig_of(cams), spec, seed=recipe.seed + 11,
-                                duration_s=float(recipe.board.get("duration_s", 20.0)), fps=recipe.fps,
-                                clocks={c.camera.name: c.clock for c in cams},
-                                closeups=bool(recipe.board.get("closeups", True)),
-                                n_closeups=int(recipe.board.get("n_closeups", 8)),
-                                noise_sigma=float(recipe.render.get("noise", 2.0)),
-                                supersample=int(recipe.board.get("supersample", 2)), progress=False,
-                                backgrounds=backgrounds)
-    vids = info.get("videos", {})
+    kw = dict(seed=recipe.seed + 11, duration_s=float(recipe.board.get("duration_s", 20.0)), fps=recipe.fps,
+              clocks={c.camera.name: c.clock for c in cams}, closeups=bool(recipe.board.get("closeups", True)),
+              n_closeups=int(recipe.board.get("n_closeups", 8)), noise_sigma=float(recipe.render.get("noise", 2.0)),
+              supersample=int(recipe.board.get("supersample", 2)), progress=False)
+    rig = rig_of(cams)
+    # one camera per process (the session's plan is the same in each: it depends on the seed and rig)
+    units = [(out / "board", rig, spec, kw, c.camera.name, (backgrounds or {}).get(c.camera.name)) for c in cams]
+    vids = dict(zip([c.camera.name for c in cams], run_units(_render_board_camera, units, workers)))
     return {name: str(Path(p).resolve().relative_to(out.resolve())) for name, p in vids.items()}
+
+
+def _render_board_camera(unit) -> str:
+    from mamma_kit.synth.board import render_board_session
+
+    folder, rig, spec, kw, name, background = unit
+    info = render_board_session(folder, rig, spec, cameras=[name], backgrounds={name: background}
+                                if background is not None else None, **kw)
+    return info["videos"][name]
 
 
 def _copy_board_spec(spec: str, out: Path) -> str:
