@@ -23,6 +23,8 @@ def track_cmd(
                                                                           "configs/sam2.1/sam2.1_hiera_t.yaml."),
     people: Optional[int] = typer.Option(None, "--people", min=1, help="builtin: how many people the capture shows "
                                                                      "(default: capture.toml [capture] people)."),
+    no_plate: bool = typer.Option(False, "--no-plate", help="builtin: background from the capture only, not from "
+                                                            "the board videos."),
     chunk: int = typer.Option(64, "--chunk", min=2, help="sam2: frames per chunk (bounds memory)."),
     device: str = typer.Option("cpu", "--device", help="sam2: cpu or cuda."),
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated subset of cameras."),
@@ -38,6 +40,6 @@ def track_cmd(
     setup(quiet, json_out)
     res = run_track(Workspace(workspace), backend=backend, cameras=cameras, prompts=prompts,
                     sam2_checkpoint=sam2_checkpoint, sam2_config=sam2_config, chunk=chunk, device=device,
-                    pictures=pictures, force=force, people=people)
+                    pictures=pictures, force=force, people=people, plate=not no_plate)
     if json_out:
         emit_json(res)

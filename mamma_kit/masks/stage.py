@@ -30,7 +30,8 @@ def select_cameras(all_names: list[str], only: list[str] | str | None) -> list[s
 
 def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None = None, prompts: Path | None = None,
               sam2_checkpoint: Path | None = None, sam2_config: str | None = None, chunk: int = 64,
-              device: str = "cpu", pictures: bool = True, force: bool = False, people: int | None = None) -> dict:
+              device: str = "cpu", pictures: bool = True, force: bool = False, people: int | None = None,
+              plate: bool = True) -> dict:
     """Person mask tracks for every camera of the workspace (see the module docstring).
     ``people``: how many people to expect (default: capture.toml's [capture] people)."""
     from mamma_kit.masks.base import BACKENDS
@@ -47,15 +48,16 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
     names = select_cameras(cap.camera_names, cameras)
     people = people if people is not None else cap.people
     options: dict = {}
-    if backend == "builtin" and people:
+    if backend == "builtin" and (people or not plate):
         from mamma_kit.masks.builtin import BuiltinSettings
 
-        options = {"settings": BuiltinSettings(people=int(people))}
+        options = {"settings": BuiltinSettings(people=int(people) if people else None, use_board_plate=plate)}
     if backend == "sam2":
         options = {"checkpoint": sam2_checkpoint, "config": sam2_config, "prompts": prompts, "chunk": chunk,
                    "device": device}
     settings = {"backend": backend, "chunk": chunk if backend == "sam2" else None, "sam2_config": sam2_config,
-                "pictures": pictures, "people": people if backend == "builtin" else None}
+                "pictures": pictures, "people": people if backend == "builtin" else None,
+                "plate": plate if backend == "builtin" else None}
     t0 = time.perf_counter()
     per_cam, todo = {}, []
     for c in names:
