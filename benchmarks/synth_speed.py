@@ -6,16 +6,11 @@
 Default case (the issue's target): iphone-outdoor-duo (4 cameras, 2 people, 1920x1080) at
 scale 1/3 (640x360), 60 frames, no board session; target: the whole capture in under 60 s
 wall clock on 2 cores. It runs ``mamma_kit.synth.capture.synthesize`` as `mamma-kit synth`
-does and times its phases with wall clock and process CPU time (time.process_time: every
-thread of this process, including the in-process x264 encoder and embree; it is what other
-jobs on a shared machine distort least, while wall time also counts waiting for them):
-
-- motion: rig, clocks, body model, motion and contacts (build_rig + build_scene);
-- audio: claps, reverberation, noise, LTC for every camera;
-- render: ray casting, shading, ground-truth masks/landmarks/contact labels, H.264 + AAC
-  encoding, per camera (frames/s is counted on this phase);
-- board (with --board): the ChArUco calibration session (its own frame count);
-- rest: ground-truth files and capture.toml.
+does (cameras rendered in parallel worker processes, one per core) and prints the wall time of
+its phases (motion, audio, render, board, total: synthesize's own timings) and the CPU time
+of this process and its workers together (resource.getrusage; what other jobs on a shared
+machine distort least, while wall time also counts waiting for them). CPU time / 2 is about
+the wall time on two idle cores.
 
 Each camera records a little before and after the action (its clock offset and a 0.2 s
 tail), so it writes more frames than --frames; frames/s counts the frames written (the
@@ -36,38 +31,12 @@ from pathlib import Path
 TARGET_S = 60.0
 
 
-class PhaseClock:
-    """Accumulates wall and CPU seconds per phase by wrapping functions."""
+def _cpu() -> float:
+    """CPU seconds of this process and its finished children (the render workers)."""
+    import resource
 
-    def __init__(self):
-        self.wall: dict[str, float] = {}
-        self.cpu: dict[str, float] = {}
-        self.per_camera: list[tuple[str, float, float, int]] = []
-
-    def wrap(self, phase: str, fn, camera_arg: int | None = None):
-        def run(*args, **kwargs):
-            c0, t0 = time.process_time(), time.perf_counter()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                dt, dc = time.perf_counter() - t0, time.process_time() - c0
-                self.wall[phase] = self.wall.get(phase, 0.0) + dt
-                self.cpu[phase] = self.cpu.get(phase, 0.0) + dc
-                if camera_arg is not None:
-                    sc = args[camera_arg]
-                    self.per_camera.append((sc.camera.name, dt, dc, len(sc.frame_times)))
-        return run
-
-
-def _instrument(clock: PhaseClock) -> None:
-    """Time synthesize()'s phases without changing them: wrap the functions it calls."""
-    from mamma_kit.synth import capture, scene
-
-    capture.build_rig = clock.wrap("motion", capture.build_rig)
-    scene.build_scene = clock.wrap("motion", scene.build_scene)  # imported inside synthesize()
-    capture._render_audio = clock.wrap("audio", capture._render_audio)
-    scene.Scene.render_camera = clock.wrap("render", scene.Scene.render_camera, camera_arg=1)
-    capture._render_board = clock.wrap("board", capture._render_board)
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def _load() -> str:
@@ -89,13 +58,11 @@ def main() -> None:
           f"niceness {os.nice(0)}")
     from mamma_kit.synth.capture import synthesize
 
-    clock = PhaseClock()
-    _instrument(clock)
     out = a.out or Path(tempfile.mkdtemp(prefix="synth_speed_"))
     try:
-        c0, t0 = time.process_time(), time.perf_counter()
+        c0, t0 = _cpu(), time.perf_counter()
         res = synthesize(a.recipe, out, seed=a.seed, frames=a.frames, scale=a.scale, board=a.board)
-        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        wall, cpu = time.perf_counter() - t0, _cpu() - c0
         load_after = _load()
         s = res.summary()
         cams = res.cameras
@@ -104,32 +71,24 @@ def main() -> None:
         print(f"recipe {res.recipe.name}: {len(cams)} cameras at {w}x{h} (scale {a.scale:.4g}), "
               f"{res.recipe.people_count} people, seed {res.recipe.seed}, {a.frames} frames requested at "
               f"{res.recipe.fps:g} fps, board {'on' if a.board else 'off'}")
-        clock.wall["rest"] = max(wall - sum(clock.wall.values()), 0.0)
-        clock.cpu["rest"] = max(cpu - sum(clock.cpu.values()), 0.0)
-        for ph in ("motion", "audio", "render", "board", "rest"):
-            if ph in clock.wall:
-                print(f"  {ph:7s} {clock.wall[ph]:7.2f} s wall  {clock.cpu[ph]:7.2f} s CPU")
-        print(f"  total   {wall:7.2f} s wall  {cpu:7.2f} s CPU  (CPU/wall {cpu / max(wall, 1e-9):.2f})")
-        for name, dt, dc, n in clock.per_camera:
-            print(f"  render {name}: {n} frames, {dt:.2f} s wall ({n / dt:.2f} frames/s), "
-                  f"{dc:.2f} s CPU ({n / max(dc, 1e-9):.2f} frames per CPU-second)")
+        for ph, secs in res.seconds.items():
+            print(f"  {ph:7s} {secs:7.2f} s wall")
+        print(f"  CPU     {cpu:7.2f} s (this process and its render workers; CPU/wall {cpu / max(wall, 1e-9):.2f})")
         print(f"frames rendered: {len(cams)} cameras x {a.frames} requested = {len(cams) * a.frames}; "
               f"written {written} ({', '.join(f'{k} {v}' for k, v in s['frames'].items())}: each camera "
               f"also records its clock offset lead and a 0.2 s tail)")
-        rw, rc = clock.wall["render"], clock.cpu["render"]
-        print(f"render: {written / rw:.2f} frames/s wall, {written / max(rc, 1e-9):.2f} frames per CPU-second; "
-              f"whole capture: {written / wall:.2f} frames/s wall, {written / max(cpu, 1e-9):.2f} frames per "
-              f"CPU-second")
-        if a.board and "board" in clock.wall:
+        rw = res.seconds.get("render", wall)
+        print(f"render: {written / rw:.2f} frames/s wall; whole capture: {written / wall:.2f} frames/s wall, "
+              f"{written / max(cpu, 1e-9):.2f} frames per CPU-second")
+        if a.board and "board" in res.seconds:
             from mamma_kit.video.reader import VideoReader
 
             nb = sum(VideoReader(out / p).n_frames for p in s["paths"]["board_videos"].values())
             print(f"board: {nb} frames in {len(s['paths']['board_videos'])} videos, "
-                  f"{nb / clock.wall['board']:.2f} frames/s wall, "
-                  f"{nb / max(clock.cpu['board'], 1e-9):.2f} frames per CPU-second")
+                  f"{nb / res.seconds['board']:.2f} frames/s wall")
         verdict = "PASS" if wall < TARGET_S else "MISS"
-        print(f"{verdict}: {wall:.1f} s wall for the whole capture against the {TARGET_S:.0f} s target "
-              f"({cpu:.1f} s CPU: about what one idle core would take)")
+        print(f"{verdict}: {wall:.1f} s wall for the whole capture against the {TARGET_S:.0f} s target; "
+              f"{cpu:.1f} s CPU, so about {cpu / 2:.0f} s on two idle cores")
         print(f"load average after: {load_after} (other work on the machine slows every wall-clock figure; "
               f"compare runs at similar load)")
     finally:

@@ -4,7 +4,8 @@
   min(|mu - mu'|^2 / (2 sigma^2), 25) + 2 log sigma (2 = one log sigma per axis), weight 100;
 - visibility: binary cross-entropy, weight 1;
 - person contact and floor contact: sigmoid focal loss (alpha 0.9, gamma 2), weight 1 each;
-- models with a dense head (config ``dense_head``): L1 of its soft-argmax positions, weight 10;
+- models with a dense head (config ``dense_head``): L1 of its soft-argmax positions, weight 10,
+  and cross-entropy of its token distribution against a Gaussian around the truth, weight 1;
 - every term weighted per landmark (``landmark_weights``): 1 inside the crop, exp(-2 |r - 1|) outside
   with r = max(|n_x|, |n_y|) the landmark's normalised Chebyshev radius (the crop border is r = 1);
   hand and foot landmarks doubled when their part is at least partly inside the crop.
@@ -30,6 +31,7 @@ class LossWeights:
     contact: float = 1.0
     floor_contact: float = 1.0
     dense: float = 10.0  # L1 (normalised units) of the dense head's soft-argmax, when the model has one
+    dense_ce: float = 1.0  # cross-entropy of its token distribution against a Gaussian around the truth
     nll_clip: float = 25.0
     focal_alpha: float = 0.9
     focal_gamma: float = 2.0
@@ -72,6 +74,17 @@ def sigmoid_focal(logits: torch.Tensor, target: torch.Tensor, alpha: float = 0.9
     return alpha_t * (1 - p_t).pow(gamma) * ce
 
 
+def dense_cross_entropy(logits_bnl: torch.Tensor, centres_n2: torch.Tensor, xy_bl2: torch.Tensor) -> torch.Tensor:
+    """(B, L) cross-entropy of the softmax over tokens against a Gaussian around each true
+    position (0.6 of a token's size per axis): a strong, dense signal from the first step,
+    where the soft-argmax alone barely moves a flat distribution."""
+    xs, ys = torch.unique(centres_n2[:, 0]), torch.unique(centres_n2[:, 1])
+    step = torch.stack([xs[1] - xs[0], ys[1] - ys[0]])  # token size (x, y), normalised
+    z = (centres_n2[None, :, None, :] - xy_bl2[:, None]) / (0.6 * step)  # (B, N, L, 2)
+    q = torch.softmax(-0.5 * (z * z).sum(-1), dim=1)
+    return -(q * torch.log_softmax(logits_bnl, dim=1)).sum(1)
+
+
 def _wmean(loss: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return (loss * w).sum() / w.sum().clamp_min(1e-6)
 
@@ -94,4 +107,8 @@ def mammanet_loss(out: dict, batch: dict, weights: LossWeights = LossWeights(),
         dense = _wmean((out["xy_dense"] - batch["xy_n"]).abs().sum(-1), w)
         total = total + weights.dense * dense
         terms["dense"] = float(dense.detach())
+    if "dense_logits" in out and weights.dense_ce > 0:
+        ce = _wmean(dense_cross_entropy(out["dense_logits"], out["dense_centres"], batch["xy_n"]), w)
+        total = total + weights.dense_ce * ce
+        terms["dense_ce"] = float(ce.detach())
     return total, {"loss": float(total.detach()), **terms}

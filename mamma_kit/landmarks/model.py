@@ -33,6 +33,8 @@ from mamma_kit.landmarks.config import MammaNetConfig
 class MammaNetOutput(TypedDict, total=False):
     xy: torch.Tensor  # (B, L, 2) normalised crop coordinates in [-1, 1]
     xy_dense: torch.Tensor  # (B, L, 2) the dense head's soft-argmax (configs with dense_head)
+    dense_logits: torch.Tensor  # (B, N, L) its logits per token (training only)
+    dense_centres: torch.Tensor  # (N, 2) the tokens' centres, normalised (training only)
     log_sigma: torch.Tensor  # (B, L) log sigma in normalised units (1 = half the crop width / height)
     vis_logit: torch.Tensor  # (B, L)
     contact_logit: torch.Tensor  # (B, L)
@@ -242,10 +244,12 @@ class DenseHead(nn.Module):
         yy, xx = torch.meshgrid(cy, cx, indexing="ij")
         self.register_buffer("centres_n2", torch.stack([xx, yy], -1).reshape(-1, 2), persistent=False)
 
-    def forward(self, memory_bdhw: torch.Tensor) -> torch.Tensor:
+    def forward(self, memory_bdhw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """-> positions (B, L, 2) and the logits (B, N, L) (the training loss sharpens them)."""
         tokens = memory_bdhw.flatten(2).transpose(1, 2)  # (B, N, D)
-        prob = torch.softmax(self.logits(tokens), dim=1)  # (B, N, L): over tokens
-        return torch.einsum("bnl,nc->blc", prob, self.centres_n2)
+        logits = self.logits(tokens)
+        prob = torch.softmax(logits, dim=1)  # over the tokens
+        return torch.einsum("bnl,nc->blc", prob, self.centres_n2), logits
 
 
 # ---- the network ----------------------------------------------------------------------------------
@@ -303,9 +307,14 @@ class MammaNet(nn.Module):
         f = self.features(image, mask)
         if self.dense is None:
             return self.decoder(f, self.backbone.pos_embed[:, 1:])
-        xy_dense = self.dense(f)
-        out = self.decoder(f, self.backbone.pos_embed[:, 1:], xy_base=xy_dense)
+        xy_dense, logits = self.dense(f)
+        # the decoder refines the dense positions but does not train them: the dense head learns
+        # from its own (dense) losses only, which the position NLL's far larger gradient would swamp
+        out = self.decoder(f, self.backbone.pos_embed[:, 1:], xy_base=xy_dense.detach())
         out["xy_dense"] = xy_dense
+        if self.training:
+            out["dense_logits"] = logits
+            out["dense_centres"] = self.dense.centres_n2
         return out
 
 
