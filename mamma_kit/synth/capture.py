@@ -75,6 +75,7 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
     t1 = time.perf_counter()
     gt = out / "gt"
     ext = ".mov" if recipe.audio.get("codec") == "pcm" else ".mp4"
+    scene.label_contacts([sc.scene_times for sc in cams], workers)
     units = [(scene, sc, out / "videos" / f"{sc.camera.name}{ext}", audio.get(sc.camera.name), recipe, gt)
              for sc in cams]
     # one camera per process: rendering, labelling and encoding share nothing between cameras

@@ -131,18 +131,32 @@ class Scene:
                 nz = vertex_normals(verts[p, j], faces)[lm, 2]
                 floor[p, j] = (verts[p, j, lm, 2] < FLOOR_DIST) & (nz < -0.3)
         if P > 1:
-            grid = self.clip.times
-            g = np.clip(np.round(np.interp(np.asarray(s, float), grid, np.arange(len(grid)))).astype(int), 0,
-                        len(grid) - 1)
+            g = self._grid_index(s)
             cache = self.__dict__.setdefault("_contact_cache", {})
             todo = sorted(set(g.tolist()) - set(cache))
             if todo:
-                v_grid, _ = self.pose(grid[todo])
-                lab = person_contact(self.body, v_grid, CONTACT_DIST)  # (P, len(todo), L)
-                for k, gi in enumerate(todo):
-                    cache[gi] = lab[:, k]
+                cache.update(zip(todo, _contact_unit((self, todo))))
             contact[:] = np.stack([cache[gi] for gi in g], 1)
         return contact, floor
+
+    def _grid_index(self, s: np.ndarray) -> np.ndarray:
+        grid = self.clip.times
+        return np.clip(np.round(np.interp(np.asarray(s, float), grid, np.arange(len(grid)))).astype(int), 0,
+                       len(grid) - 1)
+
+    def label_contacts(self, times: list[np.ndarray], workers: int | None = None) -> None:
+        """Person-contact labels of every motion sample any of ``times`` needs, computed once
+        (split over worker processes) before the cameras are rendered, each in its own process."""
+        from mamma_kit.core.executor import default_workers, run_units
+
+        if self.n_people < 2:
+            return
+        need = sorted(set(np.concatenate([self._grid_index(t) for t in times]).tolist()))
+        n = default_workers(len(need), workers)
+        parts = [need[i::n] for i in range(n)]
+        cache = self.__dict__.setdefault("_contact_cache", {})
+        for part, labels in zip(parts, run_units(_contact_unit, [(self, p) for p in parts], n)):
+            cache.update(zip(part, labels))
 
     # ---- ground-truth bodies ------------------------------------------------------------
     def write_gt_bodies(self, gt: Path, ref: SynthCamera) -> None:
@@ -159,6 +173,14 @@ class Scene:
                                         producer=producer("mamma-kit synth (ground truth)")
                                         | {"reference_camera": ref.camera.name})
             write_smplx_result(gt / "smplx" / f"person_{p}.npz", r)
+
+
+def _contact_unit(unit) -> list[np.ndarray]:
+    """Person-contact labels (P, L) at the given motion-grid samples of a scene."""
+    scene, idx = unit
+    v_grid, _ = scene.pose(scene.clip.times[idx])
+    lab = person_contact(scene.body, v_grid, CONTACT_DIST)  # (P, len(idx), L)
+    return [lab[:, k] for k in range(len(idx))]
 
 
 def person_contact(body, verts: np.ndarray, dist: float) -> np.ndarray:
