@@ -51,7 +51,7 @@ def test_embedded_configs_fit_the_package_budget():
         with torch.device("meta"):
             n = count_parameters(build_model(name, device="meta"))
         assert n * 2 < 25e6, name  # float16 weights stay under 25 MB
-    assert CONFIGS["embedded"].grid_hw == (16, 12) and CONFIGS["official"].grid_hw == (32, 24)
+    assert CONFIGS["embedded"].grid_hw == (24, 18) and CONFIGS["official"].grid_hw == (32, 24)
 
 
 def test_config_validation_and_roundtrip():
@@ -147,3 +147,33 @@ def test_total_loss_weights_and_gradients():
     total.backward()
     assert (out["xy"].grad < 0).all()  # pulls predictions towards the targets
     assert np.isfinite(out["log_sigma"].grad.numpy()).all()
+
+
+def test_dense_head_centres_and_conv_stem_shapes():
+    """The conv stem gives the token grid of its patch size; the dense head's cells sit at the
+    centres of the input pixels they cover (normalised units), and its soft-argmax of a
+    one-hot logit map is that cell's centre."""
+    from mamma_kit.landmarks.model import MammaNet
+
+    cfg = get_config("embedded")
+    m = MammaNet(cfg).eval()
+    with torch.no_grad():
+        f = m.features(torch.zeros(1, 3, *cfg.input_hw), torch.ones(1, 1, *cfg.input_hw))
+    assert tuple(f.shape[-2:]) == cfg.grid_hw
+    c = m.dense.centres_n2
+    gh, gw = 2 * cfg.grid_hw[0], 2 * cfg.grid_hw[1]
+    assert c.shape == (gh * gw, 2)
+    step = cfg.patch / 2  # the fine map: twice the token resolution
+    assert torch.allclose(c[0], torch.tensor([step / cfg.input_hw[1] - 1, step / cfg.input_hw[0] - 1]))
+    from mamma_kit.landmarks.losses import dense_cross_entropy
+
+    xy = c[None, [7, 300]]  # two landmarks exactly at cell centres
+    logits = torch.full((1, len(c), 2), -30.0)
+    logits[0, 7, 0] = logits[0, 300, 1] = 30.0
+    prob = torch.softmax(logits, 1)
+    assert torch.allclose(torch.einsum("bnl,nc->blc", prob, c), xy, atol=1e-6)
+    # a prediction shaped like the target (a Gaussian around the truth) beats a flat one
+    d = torch.stack([c[1, 0] - c[0, 0], c[gw, 1] - c[0, 1]])
+    z = (c[None, :, None] - xy[:, None]) / (0.6 * d)
+    good = -0.5 * (z * z).sum(-1)
+    assert (dense_cross_entropy(good, c, xy) < dense_cross_entropy(torch.zeros_like(good), c, xy) - 2).all()

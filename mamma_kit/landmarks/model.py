@@ -51,6 +51,40 @@ class PatchEmbed(nn.Module):
         return self.proj(x_b3hw)  # (B, D, gh, gw)
 
 
+class ConvStem(nn.Module):
+    """Stages of two 3x3 convolutions (LayerNorm2d, GELU; the second residual), the first of
+    each strided, whose strides multiply to the patch size, widening to the token dimension: a
+    ViT trained from scratch on little data learns locality far faster with it than from one
+    patch-sized convolution. Output (B, D, gh, gw) like PatchEmbed; ``fine`` holds the features
+    of the stage before the last (twice the token resolution) for the dense head."""
+
+    def __init__(self, cfg: MammaNetConfig):
+        super().__init__()
+        from mamma_kit.landmarks.config import _factors
+
+        strides = _factors(cfg.patch)
+        widths = [max(16, cfg.dim >> (len(strides) - 1 - i)) for i in range(len(strides))]
+        self.down = nn.ModuleList()
+        self.refine = nn.ModuleList()
+        c = 3
+        for st, w in zip(strides, widths):
+            k = 3 if st == 2 else st
+            self.down.append(nn.Sequential(nn.Conv2d(c, w, k, stride=st, padding=1 if st == 2 else 0),
+                                           LayerNorm2d(w, cfg.vit_eps), nn.GELU()))
+            self.refine.append(nn.Sequential(nn.Conv2d(w, w, 3, padding=1), LayerNorm2d(w, cfg.vit_eps), nn.GELU()))
+            c = w
+        self.fine_channels = widths[-2] if len(widths) > 1 else widths[-1]
+        self.fine: torch.Tensor | None = None
+
+    def forward(self, x_b3hw: torch.Tensor) -> torch.Tensor:
+        for i, (d, r) in enumerate(zip(self.down, self.refine)):
+            x = d(x_b3hw if i == 0 else x)
+            x = x + r(x)
+            if i == len(self.down) - 2:
+                self.fine = x
+        return x
+
+
 class Attention(nn.Module):
     def __init__(self, dim: int, heads: int):
         super().__init__()
@@ -95,7 +129,7 @@ class ViT(nn.Module):
     def __init__(self, cfg: MammaNetConfig):
         super().__init__()
         self.grid_hw = cfg.grid_hw
-        self.patch_embed = PatchEmbed(cfg)
+        self.patch_embed = PatchEmbed(cfg) if cfg.stem == "patch" else ConvStem(cfg)
         self.pos_embed = nn.Parameter(torch.zeros(1, cfg.n_tokens + 1, cfg.dim))
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.depth))
         self.last_norm = nn.LayerNorm(cfg.dim, eps=cfg.vit_eps)
@@ -228,27 +262,43 @@ class LandmarkDecoder(nn.Module):
 
 
 class DenseHead(nn.Module):
-    """Per landmark, a logit on every image token; the landmark is the softmax-weighted mean of
-    the tokens' centres (integral regression). Dense supervision of every token teaches the
-    backbone where each landmark is far faster than the decoder's cross-attention learns it."""
+    """Per landmark, a logit on every cell of a map; the landmark is the softmax-weighted mean
+    of the cells' centres (integral regression). Dense supervision of every cell teaches the
+    backbone where each landmark is far faster than the decoder's cross-attention learns it.
+    With a conv stem the map is the stem's finer stage (twice the token resolution) fused with
+    the upsampled tokens; else the token grid itself."""
 
-    def __init__(self, cfg: MammaNetConfig):
+    def __init__(self, cfg: MammaNetConfig, fine_channels: int | None = None):
         super().__init__()
-        self.logits = nn.Linear(cfg.dim, cfg.n_landmarks)
         gh, gw = cfg.grid_hw
         h, w = cfg.input_hw
         p, pad = cfg.patch, cfg.patch_padding
-        # token centres in normalised crop units: token c spans input px [c p - pad, (c + 1) p - pad)
+        self.fine = fine_channels is not None
+        if self.fine:
+            c = fine_channels
+            self.from_tokens = nn.Conv2d(cfg.dim, c, 1)
+            self.from_fine = nn.Conv2d(c, c, 1)
+            self.mix = nn.Sequential(nn.GELU(), nn.Conv2d(c, c, 3, padding=1), nn.GELU())
+            self.logits = nn.Conv2d(c, cfg.n_landmarks, 1)
+            gh, gw, p = 2 * gh, 2 * gw, p / 2
+        else:
+            self.logits = nn.Linear(cfg.dim, cfg.n_landmarks)
+        # cell centres in normalised crop units: cell c spans input px [c p - pad, (c + 1) p - pad)
         cx = ((torch.arange(gw) + 0.5) * p - pad) / w * 2 - 1
         cy = ((torch.arange(gh) + 0.5) * p - pad) / h * 2 - 1
         yy, xx = torch.meshgrid(cy, cx, indexing="ij")
         self.register_buffer("centres_n2", torch.stack([xx, yy], -1).reshape(-1, 2), persistent=False)
 
-    def forward(self, memory_bdhw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, memory_bdhw: torch.Tensor, fine_bchw: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
         """-> positions (B, L, 2) and the logits (B, N, L) (the training loss sharpens them)."""
-        tokens = memory_bdhw.flatten(2).transpose(1, 2)  # (B, N, D)
-        logits = self.logits(tokens)
-        prob = torch.softmax(logits, dim=1)  # over the tokens
+        if self.fine:
+            up = F.interpolate(self.from_tokens(memory_bdhw), size=fine_bchw.shape[-2:], mode="bilinear",
+                               align_corners=False)
+            logits = self.logits(self.mix(up + self.from_fine(fine_bchw))).flatten(2).transpose(1, 2)
+        else:
+            logits = self.logits(memory_bdhw.flatten(2).transpose(1, 2))  # (B, N, L)
+        prob = torch.softmax(logits, dim=1)  # over the cells
         return torch.einsum("bnl,nc->blc", prob, self.centres_n2), logits
 
 
@@ -267,7 +317,8 @@ class MammaNet(nn.Module):
         self.backbone = ViT(cfg)
         self.decoder = LandmarkDecoder(cfg)
         self.mask_downscaling = MaskEmbed(cfg) if cfg.use_mask else None
-        self.dense = DenseHead(cfg) if cfg.dense_head else None
+        fine = self.backbone.patch_embed.fine_channels if cfg.stem == "conv" else None
+        self.dense = DenseHead(cfg, fine) if cfg.dense_head else None
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
@@ -307,7 +358,7 @@ class MammaNet(nn.Module):
         f = self.features(image, mask)
         if self.dense is None:
             return self.decoder(f, self.backbone.pos_embed[:, 1:])
-        xy_dense, logits = self.dense(f)
+        xy_dense, logits = self.dense(f, getattr(self.backbone.patch_embed, "fine", None))
         # the decoder refines the dense positions but does not train them: the dense head learns
         # from its own (dense) losses only, which the position NLL's far larger gradient would swamp
         out = self.decoder(f, self.backbone.pos_embed[:, 1:], xy_base=xy_dense.detach())
