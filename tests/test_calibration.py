@@ -286,3 +286,21 @@ def test_floor_boards_define_z_up_and_the_origin(rv, t, yaw):
         assert np.allclose(R_w @ R_frame, np.eye(3), atol=1e-9)
         assert np.allclose(R_w @ t_frame + t_w, 0, atol=1e-9)
         assert info["floor_boards"] == len(boards) and info["floor_flatness_mm"] < 1e-6
+
+
+def test_far_weakly_tilted_views_do_not_send_the_focal_length_off():
+    """Board detections of the demo capture's cam3 (board 4-5 m away, true fx = fy = 768.2 px at
+    960x540): OpenCV's own start converged to fx 1750, fy 22700 px there, which left the camera
+    unconnected; the multi-start with square pixels finds the real lens."""
+    from mamma_kit.calibration.detect import Detections
+    from mamma_kit.calibration.intrinsics import calibrate_camera
+
+    data = Path(__file__).parent / "data"
+    z = np.load(data / "far_board_cam3_detections.npz")
+    det = Detections("cam3", "cam3.mp4", tuple(int(v) for v in z["size"]), z["times_f"], z["xy_fn2"],
+                     z["n_markers_f"], int(z["rotation_deg"]), int(z["frame_step"]))
+    res = calibrate_camera(det, load_board_spec(data / "far_board_spec.toml"))
+    K = res.camera.K
+    assert abs(K[0, 0] / 768.2 - 1) < 0.02 and abs(K[1, 1] / 768.2 - 1) < 0.02
+    assert abs(K[0, 2] - 473.8) < 15 and abs(K[1, 2] - 266.9) < 15
+    assert res.rms_px < 0.6

@@ -18,6 +18,7 @@ from mamma_kit.calibration.detect import Detections
 from mamma_kit.calibration.lens import undistort_exact
 from mamma_kit.core.camera import Camera, distort_normalized, rodrigues
 from mamma_kit.core.errors import UserError
+from mamma_kit.core import log
 
 N_DIST = {"radtan": 5, "rational": 8, "fisheye": 4}
 STD_NAMES = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"]
@@ -225,6 +226,38 @@ def select_views(det: Detections, spec: BoardSpec, cam0: Camera, frames: np.ndar
                  "tilts": {int(f): info[int(f)]["tilt_deg"] for f in sel}}
 
 
+def _plausible(K: np.ndarray, size: tuple[int, int]) -> bool:
+    """Square-ish pixels, a focal length of a real lens and the principal point in the image:
+    LM can wander off to a far minimum (fy 30x fx) when the views constrain focal length weakly."""
+    w, h = size
+    fx, fy = K[0, 0], K[1, 1]
+    return bool(0 <= K[0, 2] < w and 0 <= K[1, 2] < h and fx > 0 and fy > 0 and 0.8 < fx / fy < 1.25
+                and 0.15 * max(w, h) < fx < 20 * max(w, h))
+
+
+def _initial_intrinsics(obj: list, img: list, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """A stable start: centred principal point, square pixels, radial k1, k2 only, from several
+    focal-length guesses (OpenCV's own homography start diverged on far, weakly tilted views)."""
+    w, h = size
+    best = None
+    for g in (0.5, 0.8, 1.3, 2.2, 4.0):
+        f = g * max(w, h)
+        K0 = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+        try:
+            rms, K, D, *_ = _calibrate("radtan", obj, img, size, K0=K0, d0=np.zeros(5),
+                                       extra_flags=cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_ZERO_TANGENT_DIST
+                                       | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_ASPECT_RATIO)
+        except cv2.error:
+            continue
+        if _plausible(K, size) and (best is None or rms < best[0]):
+            best = (rms, K, D)
+    if best is None:  # every start failed: let OpenCV's own start raise its reason
+        _, K, D, *_ = _calibrate("radtan", obj, img, size, extra_flags=cv2.CALIB_FIX_PRINCIPAL_POINT
+                                 | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3)
+        return K, D
+    return best[1], best[2]
+
+
 def calibrate_camera(det: Detections, spec: BoardSpec, model: str = "radtan", max_views: int = 40,
                      fixed: Camera | None = None, min_views: int = 4, frames: np.ndarray | None = None
                      ) -> IntrinsicResult:
@@ -247,9 +280,7 @@ def calibrate_camera(det: Detections, spec: BoardSpec, model: str = "radtan", ma
         obj = [spec.corners_b3[np.isfinite(det.xy_fn2[f, :, 0])] for f in init]
         img = [det.xy_fn2[f][np.isfinite(det.xy_fn2[f, :, 0])] for f in init]
         try:
-            # a stable start: centred principal point, radial k1, k2 only
-            _, K, D, *_ = _calibrate("radtan", obj, img, det.size, extra_flags=cv2.CALIB_FIX_PRINCIPAL_POINT
-                                     | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3)
+            K, D = _initial_intrinsics(obj, img, det.size)
             if model == "rational":
                 D = np.r_[D, np.zeros(3)]
             if model == "fisheye":
@@ -284,11 +315,12 @@ def calibrate_camera(det: Detections, spec: BoardSpec, model: str = "radtan", ma
     removed = 0
     K, D = cam0.K, cam0.dist
     best = None
-    for rnd in range(4):
+    extra = 0
+    for rnd in range(5):
         obj = [spec.corners_b3[mask[int(f)]] for f in sel]
         img = [det.xy_fn2[f][mask[int(f)]] for f in sel]
         try:
-            out = _calibrate(model, obj, img, det.size, K0=K, d0=D)
+            out = _calibrate(model, obj, img, det.size, K0=K, d0=D, extra_flags=extra)
         except cv2.error as e:
             if best is not None:
                 break
@@ -296,8 +328,13 @@ def calibrate_camera(det: Detections, spec: BoardSpec, model: str = "radtan", ma
                             f"({_cv_reason(e)})",
                             "tilt the board 30-45 degrees in several views and cover the whole image") from None
         rms, K1, D1, rv, tv, std, errs = out
-        w, h = det.size
-        sane = 0 <= K1[0, 2] < w and 0 <= K1[1, 2] < h and K1[0, 0] > 0 and K1[1, 1] > 0
+        sane = _plausible(K1, det.size)
+        if not sane and best is None and not extra and model != "fisheye":
+            # the free aspect ratio let the solver wander off: phones have square pixels
+            log.warn(f"{name}: the free-aspect solution was implausible (fx {K1[0, 0]:.0f}, fy {K1[1, 1]:.0f} px); "
+                     "calibrating with square pixels")
+            extra = cv2.CALIB_FIX_ASPECT_RATIO
+            continue
         if best is not None and (not sane or rms > best[1][0] * 1.05 + 0.02):
             break
         best = (sel.copy(), out, {k: v.copy() for k, v in mask.items()})
