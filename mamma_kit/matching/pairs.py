@@ -15,6 +15,7 @@ before averaging so the few outliers a landmark detector makes cannot outvote th
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,11 +55,16 @@ class ViewTracks:
         xy_und = np.full_like(xy, np.nan)
         if finite.any():
             xy_und[finite] = camera.undistort_pixels(xy[finite])
-        vis = (np.asarray(lt.visibility) > vis_threshold) & finite & valid[..., None]
+        v = np.where(finite, np.asarray(lt.visibility, np.float64), np.nan)
+        # a detection always keeps its more visible half: the ranking of visibility carries the
+        # self-occlusion even from a network whose probabilities sit below the threshold (a
+        # landmark's projection is where it is, occluded or not, so the matcher loses little)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            v_half = np.nanmedian(v, -1, keepdims=True)  # (T, K, 1)
+        vis = (v >= np.minimum(vis_threshold, v_half)) & finite & valid[..., None]
         ys = np.where(finite, xy[..., 1], np.nan)
         with np.errstate(all="ignore"):
-            import warnings
-
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 height = np.nanmax(ys, -1) - np.nanmin(ys, -1)
