@@ -25,7 +25,9 @@ def _synth_once(out: Path, frames: int, scale: float, seed: int | None) -> dict:
     from mamma_kit.core.io import read_json, write_json
     from mamma_kit.synth.capture import synthesize
 
-    key = {"recipe": DEMO_RECIPE, "frames": frames, "scale": scale, "seed": seed}
+    # (None left out: the JSON writer drops nulls, and the stored key must compare equal)
+    key = {k: v for k, v in {"recipe": DEMO_RECIPE, "frames": frames, "scale": scale, "seed": seed}.items()
+           if v is not None}
     stamp = out / ".cache" / "demo-synth.json"
     if stamp.is_file() and (out / "capture.toml").is_file():
         try:
