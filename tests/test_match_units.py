@@ -58,6 +58,24 @@ def test_exact_correspondences_have_zero_distance_and_others_do_not():
     assert r.distance[right].max() < 1e-6 and r.distance[~right].min() > 0.01
 
 
+def test_low_visibility_probabilities_keep_the_more_visible_half():
+    """A network whose visibility never reaches 0.5 (short training) still matches: each detection
+    keeps its more visible half, and landmarks above the threshold always count."""
+    rng = np.random.default_rng(1)
+    rig = make_ring_rig(2)
+    X = _people(rng, 2, 6)
+    times = np.arange(6) / 30
+    la, lb = _view(rig[0], X, times), _view(rig[1], X, times, perm=np.array([1, 0]))
+    for lt in (la, lb):
+        lt.visibility[:] = rng.uniform(0.2, 0.4, lt.visibility.shape)
+    va, vb = ViewTracks.from_landmarks(la, rig[0], times), ViewTracks.from_landmarks(lb, rig[1], times)
+    assert va.vis_tkl.sum(-1).min() == 20  # half of 40 landmarks per detection
+    r = pair_distances(va, vb)
+    assert r.shared_landmarks[0, 1] > 0 and r.distance[0, 1] < 1e-6 < r.distance[0, 0]
+    la.visibility[:] = 0.9
+    assert ViewTracks.from_landmarks(la, rig[0], times).vis_tkl.all()
+
+
 @settings(max_examples=15, deadline=None)
 @given(st.floats(0.25, 4.0))
 def test_distance_is_resolution_independent(scale):

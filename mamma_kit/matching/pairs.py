@@ -3,8 +3,8 @@
 Every track of view a is compared with every track of view b over all the frames they share
 (a tracklet, not one frame): frames of b are brought to the times of a's frames through the
 clock models (linear interpolation between b's two neighbouring frames, else the nearest frame
-within half a frame period), and for every landmark visible (> 0.5) in both views the symmetric
-epipolar distance is taken on undistorted pixels.
+within half a frame period), and for every landmark visible in both views (> 0.5, or in the more
+visible half of its detection) the symmetric epipolar distance is taken on undistorted pixels.
 
 Distances are measured in units of the person's height in that image (the extent of its
 landmarks): a pixel distance divided by the height is, to first order, a metric distance from
