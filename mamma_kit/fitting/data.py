@@ -193,7 +193,7 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         a = np.clip((out_t - tr[i0]) / span, 0.0, 1.0)
         for k, tid in enumerate(lt.track_ids):
             p = pmap[n].get(int(tid))
-            if p is None:
+            if p is None or p not in pindex:  # unmatched, or a person left out (seen in one view)
                 continue
             pi = pindex[p]
             ok = lt.valid[:, k]
