@@ -52,9 +52,14 @@ def headline(ev: dict) -> dict:
         out["mpjpe_mm"] = fit.get("mpjpe_mm")
         out["pa_mpjpe_mm"] = fit.get("pa_mpjpe_mm")
         out["pve_mm"] = fit.get("pve_mm")
-    cal = (ev.get("calibration") or {}).get("worst") or {}
+    calg = ev.get("calibration") or {}
+    # the rig after a similarity onto the truth: where the board lay on the floor fixes the
+    # world's yaw and origin, which no calibration can know; the floor's tilt it can
+    cal = (calg.get("relative") or {}).get("worst") or calg.get("worst") or {}
     if cal:
         out["calibration_worst"] = {k: cal.get(k) for k in ("rotation_deg", "center_mm", "focal_pct")}
+    if calg.get("world_frame"):
+        out["floor_tilt_deg"] = calg["world_frame"].get("tilt_deg")
     tim = ev.get("timing") or {}
     if tim:
         out["sync_worst_offset_error_ms"] = tim.get("worst_offset_error_ms")
