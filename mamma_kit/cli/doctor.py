@@ -12,6 +12,7 @@ from mamma_kit import __version__
 from mamma_kit.cli.app import app
 from mamma_kit.cli.common import JsonOpt, emit_json
 from mamma_kit.core import log
+from mamma_kit.core.doctor import check as _check
 
 CORE_PACKAGES = ["numpy", "scipy", "torch", "opencv-contrib-python-headless", "av", "librosa", "soundfile",
                  "trimesh", "embreex", "typer", "rich", "tomli-w", "pyyaml", "matplotlib"]
@@ -27,10 +28,6 @@ def _version_of(dist: str) -> str | None:
         return md.version(dist)
     except md.PackageNotFoundError:
         return None
-
-
-def _check(name: str, ok: bool, detail: str, fix: str = "") -> dict:
-    return {"name": name, "ok": bool(ok), "detail": detail, **({"fix": fix} if fix and not ok else {})}
 
 
 def run_checks() -> dict:

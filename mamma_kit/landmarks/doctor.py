@@ -11,14 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _check(name: str, ok: bool, detail: str, fix: str = "", optional: bool = False) -> dict:
-    d = {"name": name, "ok": bool(ok), "detail": detail}
-    if optional:
-        d["optional"] = True
-    if fix and not ok:
-        d["fix"] = fix
-    return d
+from mamma_kit.core.doctor import check as _check
 
 
 def _embedded() -> dict:
