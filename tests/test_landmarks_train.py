@@ -194,6 +194,20 @@ def test_train_loss_drops_and_resume_continues(tmp_path, cli):
 
     loaded = load_model(tmp_path / "run" / "tiny.pt")
     assert loaded.landmark_set == "toy-16" and loaded.config.n_landmarks == L
+    # the layout visibility head: fitted on the run's crops, shipped in the weights, used by forward
+    res = cli("train", cfg, "--out", tmp_path / "run", "--export", "--layout-visibility", "--json", "--quiet")
+    assert res.code == 0, res
+    lm = load_model(tmp_path / "run" / "tiny.pt")
+    assert lm.config.layout_visibility and lm.model.layout_vis is not None
+    card = json.loads((tmp_path / "run" / "model_card.json").read_text())
+    assert card["training"]["layout_visibility"]["predicted_crops"] == 48
+    assert "intermediate" not in card["training"] and "layout head" in (tmp_path / "run" / "model_card.md").read_text()
+    H, W = lm.config.input_hw
+    with torch.no_grad():
+        out = lm.model(torch.zeros(2, 3, H, W), torch.ones(2, 1, H, W))
+        xy_px = out["xy"] * torch.tensor([W / 2, H / 2])
+        assert torch.allclose(out["vis_logit"], lm.model.layout_vis(xy_px), atol=1e-5)
+    assert cli("train", cfg, "--layout-visibility", "--quiet").code == 2
 
 
 def test_train_config_errors(tmp_path, cli):

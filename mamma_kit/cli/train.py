@@ -25,17 +25,23 @@ def train_cmd(
                                                                            "checkpoint (continue with --resume)."),
     export: bool = typer.Option(False, "--export", help="Write weights + model card from the checkpoint as it "
                                                         "stands (intermediate), without training."),
+    layout_visibility: bool = typer.Option(False, "--layout-visibility", help="With --export: fit the visibility "
+                                           "head on the layout of the predicted landmarks (landmarks/layout_vis.py) "
+                                           "and ship it in place of the decoder's visibility."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
     """Train MammaNet on `mamma-kit synth --crops` shards; checkpoints every few hundred steps, evaluates on
     held-out shards, and writes <arch>.pt with model_card.md/json in the output folder."""
+    from mamma_kit.core.errors import UserError
     from mamma_kit.landmarks.train import export as export_weights
     from mamma_kit.landmarks.train import train
 
     setup(quiet, json_out)
+    if layout_visibility and not export:
+        raise UserError("--layout-visibility is a step of --export", "pass --export --layout-visibility after training")
     if export:
-        summary = export_weights(config, out=out, device=device)
+        summary = export_weights(config, out=out, device=device, layout_visibility=layout_visibility)
         if json_out:
             emit_json(summary)
         else:

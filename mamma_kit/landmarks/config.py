@@ -62,6 +62,9 @@ class MammaNetConfig:
     # tokens) that the decoder's positions refine: trains in hours on a CPU where the decoder
     # alone converges slowly; not in the official architecture
     dense_head: bool = False
+    # visibility from the layout of the predicted positions (landmarks/layout_vis.py) instead of
+    # the decoder's output: fitted after training (`mamma-kit train --layout-visibility`)
+    layout_visibility: bool = False
     # pre-processing: "official" d = max(box) / (2 * W_in); "scale" d = true downscale factor
     antialias: str = "scale"
 

@@ -319,6 +319,11 @@ class MammaNet(nn.Module):
         self.mask_downscaling = MaskEmbed(cfg) if cfg.use_mask else None
         fine = self.backbone.patch_embed.fine_channels if cfg.stem == "conv" else None
         self.dense = DenseHead(cfg, fine) if cfg.dense_head else None
+        self.layout_vis = None
+        if cfg.layout_visibility:
+            from mamma_kit.landmarks.layout_vis import LayoutVisibility
+
+            self.layout_vis = LayoutVisibility(cfg.n_landmarks)
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
@@ -355,6 +360,14 @@ class MammaNet(nn.Module):
         return f
 
     def forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
+        out = self._forward(image, mask)
+        if self.layout_vis is not None:
+            H, W = self.cfg.input_hw
+            half = out["xy"].new_tensor([W / 2, H / 2])  # normalised -> input-crop px
+            out["vis_logit"] = self.layout_vis(out["xy"].detach() * half)
+        return out
+
+    def _forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
         f = self.features(image, mask)
         if self.dense is None:
             return self.decoder(f, self.backbone.pos_embed[:, 1:])

@@ -362,9 +362,12 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
     return _finish(model, tc, train_set, val_set, step, state, final, out_dir, device)
 
 
-def export(config_path: str | Path, out: str | None = None, device: str = "cpu") -> dict:
+def export(config_path: str | Path, out: str | None = None, device: str = "cpu",
+           layout_visibility: bool = False) -> dict:
     """Weights + model card from a run's checkpoint as it stands (a run still in progress, or
-    one stopped early): evaluated on the held-out shards, marked as step N of M in the card."""
+    one stopped early): evaluated on the held-out shards, marked as step N of M in the card
+    when the schedule is not done. ``layout_visibility``: fit the layout visibility head
+    (landmarks/layout_vis.py) on the training crops and ship it in place of the decoder's."""
     tc = load_train_config(config_path, out)
     s = tc.settings
     ckpt_path = Path(s.out) / "checkpoint.pt"
@@ -382,10 +385,25 @@ def export(config_path: str | Path, out: str | None = None, device: str = "cpu")
     step, state = int(ck["step"]), json.loads(ck["state"])
     train_set = CropShards(tc.train_dirs)
     val_set = CropShards(tc.val_dirs) if tc.val_dirs else None
+    if layout_visibility:
+        from dataclasses import replace
+
+        from mamma_kit.landmarks.layout_vis import fit_layout_visibility
+
+        before = evaluate_crops(model, val_set, s.eval_samples, s.batch, device) if val_set is not None else {}
+        head, info = fit_layout_visibility(model, tc.train_dirs)
+        info["held_out_accuracy_of_the_decoder_visibility"] = before.get("visibility_accuracy")
+        cfg = replace(cfg, layout_visibility=True)
+        tc.model = cfg
+        sd = model.state_dict()
+        model = MammaNet(cfg).to(device)
+        model.load_state_dict({**sd, **{f"layout_vis.{k}": v for k, v in head.state_dict().items()}})
+        state = {**state, "layout_visibility": info}
     final = evaluate_crops(model, val_set, s.eval_samples, s.batch, device) if val_set is not None else None
     if final is not None:
         final["step"] = step
-    state = {**state, "intermediate": {"step": step, "of": s.steps}}
+    if step < s.steps:
+        state = {**state, "intermediate": {"step": step, "of": s.steps}}
     return _finish(model, tc, train_set, val_set, step, state, final, Path(s.out), device)
 
 
@@ -404,6 +422,8 @@ def _finish(model, tc: TrainConfig, train_set, val_set, step, state, final, out_
     }
     if state.get("intermediate"):
         card["training"]["intermediate"] = state["intermediate"]
+    if state.get("layout_visibility"):
+        card["training"]["layout_visibility"] = state["layout_visibility"]
     weights = save_weights(out_dir / f"{cfg.name}.pt", model.cpu(), train_set.landmark_set, card,
                            half=tc.settings.half_weights)
     write_json(out_dir / "model_card.json", card)
@@ -429,7 +449,16 @@ def model_card_markdown(card: dict) -> str:
         f"torch {t['torch']} on {t['device']} ({t['threads']} threads)",
         f"- {t['steps']} steps x batch {t['batch']} = {t['samples_seen']} samples in {t['seconds'] / 3600:.2f} h"
         + (f" (an intermediate checkpoint: step {t['intermediate']['step']} of a {t['intermediate']['of']}-step "
-           "schedule)" if t.get("intermediate") else ""), "",
+           "schedule)" if t.get("intermediate") else ""),
+    ]
+    lv = t.get("layout_visibility")
+    if lv:
+        lines.append(f"- visibility: the layout head (landmarks/layout_vis.py) fitted after training on the network's "
+                     f"predictions for {lv['predicted_crops']} training crops and {lv['train_crops']} noisy true layouts "
+                     f"in {lv['seconds']:.0f} s; the decoder's own visibility scored "
+                     f"{f(lv.get('held_out_accuracy_of_the_decoder_visibility'), 3)} on the held-out crops")
+    lines += [
+        "",
         "## Data", "",
         f"- train: {d['train']['samples']} crops from {', '.join(d['train']['dirs'])}; recipes {d['train']['recipes']}, "
         f"seeds {d['train']['seeds']}",
