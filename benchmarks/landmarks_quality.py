@@ -15,7 +15,7 @@ Each model runs through the real `mamma-kit landmarks` on ground-truth person ma
 --backend gt`, so the figures are the network's, not the tracker's) and `mamma-kit eval`
 compares with the renderer's landmarks. Printed per capture and model: mean 2D error in % of
 the person's box height (all landmarks and visible ones) and px, visibility accuracy, person-
-and floor-contact ROC AUC. With --crops, the same metrics on held-out training-style crops
+and floor-contact ROC AUC, and the identity accuracy of `mamma-kit match` on those landmarks. With --crops, the same metrics on held-out training-style crops
 (network input resolution, exact masks). Targets (issue): visible error <= 3 % of box height,
 visibility accuracy >= 90 %, contact AUC >= 0.85 (person) and >= 0.9 (floor), and better than
 the single-query baseline.
@@ -78,6 +78,17 @@ def evaluate(ws: Path, weights: Path, threads: int) -> dict:
     return out
 
 
+def identities(ws: Path) -> dict:
+    """`mamma-kit match` on the landmarks just written (true calibration and clocks, so the
+    figure is the landmarks'), scored by `mamma-kit eval`."""
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.evaluation.fit import install_gt_calibration_and_timing
+
+    install_gt_calibration_and_timing(Workspace(ws))
+    mk("match", ws, "--force", "-q")
+    return json.loads(mk("eval", ws, "--only", "identities", "--json", capture=True))["identities"]
+
+
 def crops_metrics(weights: Path, crops: Path, n: int, threads: int) -> dict:
     import torch
 
@@ -123,8 +134,10 @@ def main() -> None:
         for mname, w in models.items():
             m = evaluate(ws, w, a.threads)
             results.setdefault(name, {})[mname] = m
-            print(f"{name:7s} {mname:13s} {fmt(m)}  [{m['instances']} person-frames, {m['seconds']:.0f} s]",
-                  flush=True)
+            ids = identities(ws)
+            m["identity_accuracy"] = ids.get("accuracy")
+            print(f"{name:7s} {mname:13s} {fmt(m)}; match identity {100 * ids.get('accuracy', float('nan')):.1f}% "
+                  f"({ids.get('persons')} persons)  [{m['instances']} person-frames, {m['seconds']:.0f} s]", flush=True)
     if a.crops is not None:
         for mname, w in models.items():
             m = crops_metrics(w, a.crops, a.crop_samples, a.threads)
