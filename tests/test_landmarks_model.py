@@ -86,6 +86,20 @@ def test_weight_file_roundtrip(tmp_path):
         load_model(tmp_path / "t.pt", arch="embedded")
 
 
+@pytest.mark.parametrize("over", [{"dense_head": True, "stem": "conv"}, {"layout_visibility": True}])
+def test_weight_file_roundtrip_with_derived_buffers_and_heads(tmp_path, over):
+    """The dense head's cell centres are a derived buffer (not in the file) and the layout head is
+    an extra module: both must load, and give the saved model's outputs."""
+    torch.manual_seed(0)
+    model = build_model(get_config("tiny", **over)).eval()
+    save_weights(tmp_path / "d.pt", model)
+    loaded = load_model(tmp_path / "d.pt").model
+    x, m = torch.randn(2, 3, 64, 48), torch.ones(2, 1, 64, 48)
+    with torch.no_grad():
+        a, b = model(x, m), loaded(x, m)
+    assert torch.equal(a["xy"], b["xy"]) and torch.equal(a["vis_logit"], b["vis_logit"])
+
+
 def test_missing_embedded_weights_is_a_user_error(monkeypatch, tmp_path, cli):
     import mamma_kit.landmarks.weights as W
 

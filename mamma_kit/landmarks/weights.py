@@ -204,6 +204,11 @@ def load_model(weights: str | Path | None = None, arch: str | None = None, devic
     # float32 compute; the (memory-mapped) checkpoint tensors become the parameters without a copy
     sd = {k: (v.float() if v.is_floating_point() and v.dtype != torch.float32 else v) for k, v in sd.items()}
     model.load_state_dict(sd, strict=True, assign=True)
+    if any(b.is_meta for b in model.buffers()):
+        # derived (non-persistent) buffers, e.g. the dense head's cell centres, are not in the
+        # file: build those on the CPU (cheap for the models that have them)
+        model = MammaNet(cfg)
+        model.load_state_dict(sd, strict=True)
     model.eval().to(device)
     return LoadedModel(model, cfg, landmark_set, str(p.resolve()), True, card)
 
