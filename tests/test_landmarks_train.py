@@ -171,6 +171,10 @@ def test_train_loss_drops_and_resume_continues(tmp_path, cli):
     # a second start without --resume refuses to overwrite the run
     res2 = cli("train", cfg, "--quiet")
     assert res2.code == 2 and "--resume" in res2.err
+    # a checkpoint written before a config field existed resumes with the field's default
+    ck = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    del ck["model_config"]["layout_visibility"]
+    torch.save(ck, tmp_path / "run" / "checkpoint.pt")
     res = cli("train", cfg, "--resume", "--json", "--quiet")
     assert res.code == 0, res
     summary = json.loads(res.out)

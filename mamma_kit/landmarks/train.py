@@ -267,7 +267,8 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
         ck = torch.load(ckpt_path, map_location="cpu", weights_only=True)
         if ck.get("format") != CHECKPOINT_FORMAT:
             raise UserError(f"{ckpt_path} is not a mamma-kit training checkpoint", "choose another output folder")
-        if ck["model_config"] != cfg.to_dict():
+        # through from_dict: a checkpoint written before a config field existed gets its default
+        if MammaNetConfig.from_dict(ck["model_config"]) != cfg:
             raise UserError(f"{ckpt_path} was trained with another model config", "resume with the same [model] section")
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
