@@ -172,8 +172,8 @@ def test_dense_head_centres_and_conv_stem_shapes():
     cfg = get_config("embedded")
     m = MammaNet(cfg).eval()
     with torch.no_grad():
-        f = m.features(torch.zeros(1, 3, *cfg.input_hw), torch.ones(1, 1, *cfg.input_hw))
-    assert tuple(f.shape[-2:]) == cfg.grid_hw
+        f, fine = m.features(torch.zeros(1, 3, *cfg.input_hw), torch.ones(1, 1, *cfg.input_hw))
+    assert tuple(f.shape[-2:]) == cfg.grid_hw and tuple(fine.shape[-2:]) == (2 * cfg.grid_hw[0], 2 * cfg.grid_hw[1])
     c = m.dense.centres_n2
     gh, gw = 2 * cfg.grid_hw[0], 2 * cfg.grid_hw[1]
     assert c.shape == (gh * gw, 2)

@@ -121,10 +121,8 @@ def test_killed_process_resumes(template, reference, tmp_path):
     cmd = [sys.executable, "-c", "import sys; from mamma_kit.cli.app import main; main(sys.argv[1:])",
            "capture-to-smplx", str(ws), "--to", "fit", "-q"]
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    t0 = time.time()
     while not (ws / ".cache" / "match.json").exists():
         assert p.poll() is None, "capture-to-smplx ended before the fit"
-        assert time.time() - t0 < 240
         time.sleep(0.05)
     time.sleep(0.3)  # into the fit (several seconds on tiny)
     was_running = p.poll() is None

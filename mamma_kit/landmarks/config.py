@@ -8,11 +8,12 @@ Every MammaNet in mamma-kit is built from a :class:`MammaNetConfig` by
     padding 2, 6-layer DETR decoder (d 768, 8 heads, FFN 2048) over 512 landmark queries, mask input.
     Its state dict has exactly the 282 names and shapes of the official Lightning checkpoint.
 ``embedded``
-    The CPU default shipped in the package: d 128 at 192 x 144, a convolutional stem to 24 x 18
-    tokens, 4 encoder layers, 2 decoder layers over 512 queries, mask input, and a dense soft-argmax
-    head whose positions the decoder refines (see ``dense_head``), and a convolutional stem in
-    place of the single patch convolution: both trade the paper's pretrained ViT-B, which a CPU
-    cannot train, for inductive biases that learn from a few thousand synthetic crops in hours.
+    The CPU default shipped in the package: d 128 at 192 x 144, a convolutional stem (in place of
+    the single patch convolution) to 24 x 18 tokens, 4 encoder layers, 2 decoder layers over 512
+    queries, mask input, and a dense soft-argmax head whose positions the decoder refines (see
+    ``dense_head``): both trade the paper's pretrained ViT-B, which a CPU cannot train, for
+    inductive biases that learn from a few thousand synthetic crops in hours. The shipped weights
+    add the layout visibility head (``layout_visibility``).
 ``embedded-256``
     A larger CPU model: d 192 at 256 x 192, patch 16, 6 encoder and 3 decoder layers.
 ``embedded-single`` / ``official-single``

@@ -5,7 +5,7 @@ Format (one folder)::
     DIR/meta.json            landmark_set (str), recipes, seeds, counts; optional
                              landmark_parts (L ints) + landmark_part_names (names) for the
                              hand/foot loss weights
-    DIR/shard_XXXX.npz       images        (N, H, W, 3) uint8  crop with generous context (x1.6 box)
+    DIR/shard_NNNN.npz       images        (N, H, W, 3) uint8  crop with generous context (x1.6 box)
                              instance      (N, H, W) uint8     0 background, 1 target, 2.. others
                              xy            (N, L, 2) float32   crop px, pixel-centre convention
                              visibility    (N, L) uint8

@@ -47,16 +47,16 @@ class PatchEmbed(nn.Module):
         super().__init__()
         self.proj = nn.Conv2d(3, cfg.dim, kernel_size=cfg.patch, stride=cfg.patch, padding=cfg.patch_padding)
 
-    def forward(self, x_b3hw: torch.Tensor) -> torch.Tensor:
-        return self.proj(x_b3hw)  # (B, D, gh, gw)
+    def forward(self, x_b3hw: torch.Tensor) -> tuple[torch.Tensor, None]:
+        return self.proj(x_b3hw), None  # (B, D, gh, gw), no finer map
 
 
 class ConvStem(nn.Module):
     """Stages of two 3x3 convolutions (LayerNorm2d, GELU; the second residual), the first of
     each strided, whose strides multiply to the patch size, widening to the token dimension: a
     ViT trained from scratch on little data learns locality far faster with it than from one
-    patch-sized convolution. Output (B, D, gh, gw) like PatchEmbed; ``fine`` holds the features
-    of the stage before the last (twice the token resolution) for the dense head."""
+    patch-sized convolution. Output (B, D, gh, gw) like PatchEmbed, and the features of the stage
+    before the last (twice the token resolution) for the dense head."""
 
     def __init__(self, cfg: MammaNetConfig):
         super().__init__()
@@ -74,15 +74,15 @@ class ConvStem(nn.Module):
             self.refine.append(nn.Sequential(nn.Conv2d(w, w, 3, padding=1), LayerNorm2d(w, cfg.vit_eps), nn.GELU()))
             c = w
         self.fine_channels = widths[-2] if len(widths) > 1 else widths[-1]
-        self.fine: torch.Tensor | None = None
 
-    def forward(self, x_b3hw: torch.Tensor) -> torch.Tensor:
+    def forward(self, x_b3hw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x, fine = x_b3hw, None
         for i, (d, r) in enumerate(zip(self.down, self.refine)):
-            x = d(x_b3hw if i == 0 else x)
+            x = d(x)
             x = x + r(x)
             if i == len(self.down) - 2:
-                self.fine = x
-        return x
+                fine = x
+        return x, (fine if fine is not None else x)
 
 
 class Attention(nn.Module):
@@ -134,8 +134,9 @@ class ViT(nn.Module):
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.depth))
         self.last_norm = nn.LayerNorm(cfg.dim, eps=cfg.vit_eps)
 
-    def forward(self, x_b3hw: torch.Tensor) -> torch.Tensor:
-        f = self.patch_embed(x_b3hw)
+    def forward(self, x_b3hw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """-> tokens (B, D, gh, gw) and the stem's finer map (conv stem) or None."""
+        f, fine = self.patch_embed(x_b3hw)
         B, D, gh, gw = f.shape
         if (gh, gw) != self.grid_hw:
             raise ValueError(f"input gives a {gh}x{gw} token grid, the model expects {self.grid_hw}")
@@ -144,7 +145,7 @@ class ViT(nn.Module):
         for blk in self.blocks:
             x = blk(x)
         x = self.last_norm(x)
-        return x.transpose(1, 2).reshape(B, D, gh, gw)
+        return x.transpose(1, 2).reshape(B, D, gh, gw), fine
 
 
 # ---- mask embedding ----------------------------------------------------------------------------
@@ -351,13 +352,15 @@ class MammaNet(nn.Module):
     def n_landmarks(self) -> int:
         return self.cfg.n_landmarks
 
-    def features(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        f = self.backbone(image)
+    def features(self, image: torch.Tensor, mask: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """-> image tokens with the mask embedding (B, D, gh, gw), and the stem's finer map or None."""
+        f, fine = self.backbone(image)
         if self.mask_downscaling is not None:
             if mask is None:
                 mask = image.new_zeros(image.shape[0], 1, *image.shape[2:])
             f = f + self.mask_downscaling(mask)
-        return f
+        return f, fine
 
     def forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
         out = self._forward(image, mask)
@@ -368,10 +371,10 @@ class MammaNet(nn.Module):
         return out
 
     def _forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
-        f = self.features(image, mask)
+        f, fine = self.features(image, mask)
         if self.dense is None:
             return self.decoder(f, self.backbone.pos_embed[:, 1:])
-        xy_dense, logits = self.dense(f, getattr(self.backbone.patch_embed, "fine", None))
+        xy_dense, logits = self.dense(f, fine)
         # the decoder refines the dense positions but does not train them: the dense head learns
         # from its own (dense) losses only, which the position NLL's far larger gradient would swamp
         out = self.decoder(f, self.backbone.pos_embed[:, 1:], xy_base=xy_dense.detach())

@@ -8,8 +8,8 @@ box (1.6 x the person's box, 3:4 W:H) — renders directly at the crop resolutio
 nothing outside the crop is ever ray cast. Labels: landmark pixels, visibility (ray cast),
 person contact (signed distance to the other bodies' proxies < 1 cm) and floor contact.
 
-Shards: DIR/shard_XXXX.npz with images (N, H, W, 3) uint8, instance (N, H, W) uint8
-(0 background, 1 the target, 2.. others), xy (N, L, 2) float32 crop pixels, visibility,
+Shards: DIR/shard_0000.npz, shard_0001.npz, ... with images (N, H, W, 3) uint8, instance
+(N, H, W) uint8 (0 background, 1 the target, 2.. others), xy (N, L, 2) float32 crop pixels, visibility,
 contact, floor_contact (N, L) uint8, box (N, 4) float32 (target's tight box in crop px);
 and DIR/meta.json.
 """
