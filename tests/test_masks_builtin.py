@@ -198,3 +198,28 @@ def test_eval_masks_and_gt_backend(tracked, cli, tmp_path):
     r = cli("eval", root, "--only", "masks", "--json")
     m = json.loads(r.out)["masks"]
     assert m["mean_iou"] == 1.0 and m["id_switches"] == 0
+
+
+def test_eval_best_single_track_separates_segmentation_from_identity():
+    """Two tracks that swap people (an identity switch) are each given the person they showed
+    longest: after the swap both people score 0, while the best single track per frame still
+    matches them (1.0)."""
+    from mamma_kit.evaluation.masks import compare_camera
+    from mamma_kit.masks.base import MaskTrackBuilder
+
+    Hs, Ws, n = 40, 60, 10
+    times = np.arange(n) / 10.0
+    a = np.zeros((Hs, Ws), bool)
+    a[5:35, 5:15] = True
+    b = np.zeros((Hs, Ws), bool)
+    b[5:35, 40:50] = True
+    gt, pred = MaskTrackBuilder("c", (Ws, Hs), times), MaskTrackBuilder("c", (Ws, Hs), times)
+    for t in range(n):
+        gt.add(t, 0, a, 1.0)
+        gt.add(t, 1, b, 1.0)
+        pred.add(t, 7, a if t < 6 else b, 1.0)
+        pred.add(t, 8, b if t < 6 else a, 1.0)
+    e = compare_camera(pred.build(), gt.build(), min_area=10)
+    assert np.allclose(e.best_track_iou_tp, 1.0)
+    assert np.allclose(e.iou_tp, np.r_[np.ones(6), np.zeros(4)][:, None])
+    assert e.switches == 2

@@ -50,6 +50,9 @@ class CameraMaskEval:
     touching_tp: np.ndarray  # (T, P) bool
     track_gt_frames: np.ndarray  # (T, K) gt person id each track overlaps best per frame (-1 none)
     switches: int
+    # (T, P) IoU of the best single track per frame, whatever person it was given: segmentation
+    # alone, without the tracker's identities (NaN where the person is not visible)
+    best_track_iou_tp: np.ndarray | None = None
 
 
 def compare_camera(pred: MaskTracks, gt: MaskTracks, min_area: int = 50, stride: int | None = None) -> CameraMaskEval:
@@ -105,7 +108,8 @@ def compare_camera(pred: MaskTracks, gt: MaskTracks, min_area: int = 50, stride:
     gt_ids = np.asarray(gt.track_ids, np.int64)
     t2g = {int(pred.track_ids[k]): (int(gt_ids[assigned[k]]) if assigned[k] >= 0 else -1) for k in range(K)}
     fb_ids = np.where(fb >= 0, gt_ids[np.clip(fb, 0, None)] if P else -1, -1)
-    return CameraMaskEval(pred.camera, gt_ids, t2g, iou_tp, touching, fb_ids, sw)
+    best_tp = np.where(np.isfinite(iou_tp), np.nan_to_num(per_frame_iou).max(1, initial=0.0), np.nan)
+    return CameraMaskEval(pred.camera, gt_ids, t2g, iou_tp, touching, fb_ids, sw, best_tp)
 
 
 def _mean(x) -> float | None:
