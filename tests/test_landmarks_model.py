@@ -191,3 +191,31 @@ def test_dense_head_centres_and_conv_stem_shapes():
     z = (c[None, :, None] - xy[:, None]) / (0.6 * d)
     good = -0.5 * (z * z).sum(-1)
     assert (dense_cross_entropy(good, c, xy) < dense_cross_entropy(torch.zeros_like(good), c, xy) - 2).all()
+
+
+def test_mask_in_stem_and_detached_decoder_memory():
+    """mask_in_stem: the stem's first convolution reads the mask as a 4th channel (the tokens
+    change with the mask even without the late mask embedding's help); detach_decoder_memory:
+    the decoder's losses leave the backbone's gradient untouched, the dense head's reach it."""
+    from mamma_kit.landmarks.model import MammaNet
+
+    torch.manual_seed(0)
+    cfg = get_config("tiny", stem="conv", dense_head=True, mask_in_stem=True, detach_decoder_memory=True)
+    m = MammaNet(cfg)
+    assert m.backbone.patch_embed.down[0][0].in_channels == 4
+    img = torch.randn(2, 3, *cfg.input_hw)
+    mask = torch.zeros(2, 1, *cfg.input_hw)
+    mask[:, :, 8:40, 10:30] = 1
+    tok_a, _ = m.backbone(torch.cat([img, mask], 1))
+    tok_b, _ = m.backbone(torch.cat([img, 1 - mask], 1))
+    assert not torch.allclose(tok_a, tok_b)
+    qkv = m.backbone.blocks[0].attn.qkv.weight
+    out = m(img, mask)
+    out["vis_logit"].sum().backward()  # decoder only
+    assert qkv.grad is None or float(qkv.grad.abs().max()) == 0.0
+    m.zero_grad()
+    out = m(img, mask)
+    out["xy_dense"].sum().backward()
+    assert float(qkv.grad.abs().max()) > 0.0
+    with pytest.raises(UserError):
+        get_config("tiny", mask_in_stem=True)  # needs the conv stem

@@ -66,6 +66,12 @@ class MammaNetConfig:
     # visibility from the layout of the predicted positions (landmarks/layout_vis.py) instead of
     # the decoder's output: fitted after training (`mamma-kit train --layout-visibility`)
     layout_visibility: bool = False
+    # the mask also enters the conv stem as a 4th input channel (early fusion): the stem then sees
+    # which pixels are the person from the first layer, instead of only after the transformer
+    mask_in_stem: bool = False
+    # the decoder reads the image tokens without training them (dense head configs): the backbone
+    # then learns from the dense losses alone, whose per-cell signal is far cleaner on a short schedule
+    detach_decoder_memory: bool = False
     # pre-processing: "official" d = max(box) / (2 * W_in); "scale" d = true downscale factor
     antialias: str = "scale"
 
@@ -95,6 +101,8 @@ class MammaNetConfig:
         if self.stem == "conv" and (self.patch_padding or _factors(self.patch) is None):
             raise UserError(f"MammaNet config {self.name}: a conv stem needs patch = a product of 2s and 3s "
                             "and no patch padding")
+        if self.mask_in_stem and (self.stem != "conv" or not self.use_mask):
+            raise UserError(f"MammaNet config {self.name}: mask_in_stem needs stem = 'conv' and use_mask")
         if self.queries not in ("per_landmark", "single"):
             raise UserError(f"MammaNet config {self.name}: queries must be 'per_landmark' or 'single'")
         if self.antialias not in ("official", "scale"):

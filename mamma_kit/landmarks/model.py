@@ -66,7 +66,7 @@ class ConvStem(nn.Module):
         widths = [max(16, cfg.dim >> (len(strides) - 1 - i)) for i in range(len(strides))]
         self.down = nn.ModuleList()
         self.refine = nn.ModuleList()
-        c = 3
+        c = 4 if cfg.mask_in_stem else 3
         for st, w in zip(strides, widths):
             k = 3 if st == 2 else st
             self.down.append(nn.Sequential(nn.Conv2d(c, w, k, stride=st, padding=1 if st == 2 else 0),
@@ -355,10 +355,10 @@ class MammaNet(nn.Module):
     def features(self, image: torch.Tensor, mask: torch.Tensor | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """-> image tokens with the mask embedding (B, D, gh, gw), and the stem's finer map or None."""
-        f, fine = self.backbone(image)
+        if self.mask_downscaling is not None and mask is None:
+            mask = image.new_zeros(image.shape[0], 1, *image.shape[2:])
+        f, fine = self.backbone(torch.cat([image, mask], 1) if self.cfg.mask_in_stem else image)
         if self.mask_downscaling is not None:
-            if mask is None:
-                mask = image.new_zeros(image.shape[0], 1, *image.shape[2:])
             f = f + self.mask_downscaling(mask)
         return f, fine
 
@@ -377,7 +377,8 @@ class MammaNet(nn.Module):
         xy_dense, logits = self.dense(f, fine)
         # the decoder refines the dense positions but does not train them: the dense head learns
         # from its own (dense) losses only, which the position NLL's far larger gradient would swamp
-        out = self.decoder(f, self.backbone.pos_embed[:, 1:], xy_base=xy_dense.detach())
+        memory = f.detach() if self.cfg.detach_decoder_memory else f
+        out = self.decoder(memory, self.backbone.pos_embed[:, 1:], xy_base=xy_dense.detach())
         out["xy_dense"] = xy_dense
         if self.training:
             out["dense_logits"] = logits
