@@ -10,9 +10,10 @@ Every MammaNet in mamma-kit is built from a :class:`MammaNetConfig` by
 ``embedded``
     The CPU default shipped in the package: d 128 at 192 x 144, a convolutional stem (in place of
     the single patch convolution) to 24 x 18 tokens, 4 encoder layers, 2 decoder layers over 512
-    queries, mask input, and a dense soft-argmax head whose positions the decoder refines (see
-    ``dense_head``): both trade the paper's pretrained ViT-B, which a CPU cannot train, for
-    inductive biases that learn from a few thousand synthetic crops in hours. The shipped weights
+    queries, mask input (also as a 4th channel of the stem), and a dense soft-argmax head whose
+    positions the decoder refines without training the backbone (see ``dense_head``,
+    ``mask_in_stem``, ``detach_decoder_memory``): these trade the paper's pretrained ViT-B, which a
+    CPU cannot train, for inductive biases that learn from a few thousand synthetic crops in hours. The shipped weights
     add the layout visibility head (``layout_visibility``).
 ``embedded-256``
     A larger CPU model: d 192 at 256 x 192, patch 16, 6 encoder and 3 decoder layers.
@@ -154,7 +155,7 @@ OFFICIAL = MammaNetConfig(
 EMBEDDED = MammaNetConfig(
     name="embedded", input_hw=(192, 144), stem="conv", patch=8, dim=128, depth=4, heads=4, mlp_dim=512,
     use_mask=True, mask_channels=(4, 16), mask_strides=(4, 2), dec_layers=2, dec_heads=4, dec_ffn=512,
-    dense_head=True,
+    dense_head=True, mask_in_stem=True, detach_decoder_memory=True,
 )
 
 EMBEDDED_256 = MammaNetConfig(
@@ -170,8 +171,9 @@ TINY = MammaNetConfig(
 CONFIGS: dict[str, MammaNetConfig] = {
     c.name: c for c in (
         OFFICIAL, EMBEDDED, EMBEDDED_256, TINY,
-        replace(EMBEDDED, name="embedded-single", queries="single"),
-        replace(EMBEDDED, name="embedded-nomask", use_mask=False),
+        # the shipped baseline was trained before mask_in_stem / detach_decoder_memory
+        replace(EMBEDDED, name="embedded-single", queries="single", mask_in_stem=False, detach_decoder_memory=False),
+        replace(EMBEDDED, name="embedded-nomask", use_mask=False, mask_in_stem=False),
         replace(OFFICIAL, name="official-single", queries="single"),
         replace(TINY, name="tiny-single", queries="single"),
     )
