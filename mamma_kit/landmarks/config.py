@@ -13,8 +13,8 @@ Every MammaNet in mamma-kit is built from a :class:`MammaNetConfig` by
     queries, mask input (also as a 4th channel of the stem), and a dense soft-argmax head whose
     positions the decoder refines without training the backbone (see ``dense_head``,
     ``mask_in_stem``, ``detach_decoder_memory``): these trade the paper's pretrained ViT-B, which a
-    CPU cannot train, for inductive biases that learn from a few thousand synthetic crops in hours. The shipped weights
-    add the layout visibility head (``layout_visibility``).
+    CPU cannot train, for inductive biases that learn from a few thousand synthetic crops in hours.
+    The shipped weights add the layout visibility head (``layout_visibility``).
 ``embedded-256``
     A larger CPU model: d 192 at 256 x 192, patch 16, 6 encoder and 3 decoder layers.
 ``embedded-single`` / ``official-single``

@@ -75,8 +75,9 @@ class ConvStem(nn.Module):
             c = w
         self.fine_channels = widths[-2] if len(widths) > 1 else widths[-1]
 
-    def forward(self, x_b3hw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        x, fine = x_b3hw, None
+    def forward(self, x_bchw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """x: (B, 3, H, W) image, or (B, 4, H, W) image and mask (``mask_in_stem``)."""
+        x, fine = x_bchw, None
         for i, (d, r) in enumerate(zip(self.down, self.refine)):
             x = d(x)
             x = x + r(x)
@@ -134,9 +135,9 @@ class ViT(nn.Module):
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.depth))
         self.last_norm = nn.LayerNorm(cfg.dim, eps=cfg.vit_eps)
 
-    def forward(self, x_b3hw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """-> tokens (B, D, gh, gw) and the stem's finer map (conv stem) or None."""
-        f, fine = self.patch_embed(x_b3hw)
+    def forward(self, x_bchw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(B, 3 or 4, H, W) -> tokens (B, D, gh, gw) and the stem's finer map (conv stem) or None."""
+        f, fine = self.patch_embed(x_bchw)
         B, D, gh, gw = f.shape
         if (gh, gw) != self.grid_hw:
             raise ValueError(f"input gives a {gh}x{gw} token grid, the model expects {self.grid_hw}")
