@@ -11,10 +11,8 @@ Per camera:
 2. Foreground in a shadow-robust colour model: each pixel's colour is compared with the
    background as a brightness ratio alpha = <I, B> / <B, B> and a chromatic distortion
    |I - alpha B| (Horprasert-style). A soft shadow darkens the background without changing
-   its chromaticity (0.45 < alpha < 1, small distortion): background, unless it hides the
-   background's texture (local correlation with a textured background below ``shadow_ncc``: a
-   shadow scales the floor's pattern, clothes of the floor's colour replace it). Then
-   opening/closing, hole filling and connected components above a minimum area.
+   its chromaticity (0.45 < alpha < 1, small distortion): background. Then opening/closing,
+   hole filling and connected components above a minimum area.
 3. Tracking: each track's last mask, shifted by its velocity, predicts where it is. A component
    claimed by two or more predictions (people touching or crossing) is split pixel by pixel
    between them by distance to each prediction and each track's colour histogram; a track
@@ -51,7 +49,6 @@ class BuiltinSettings:
     shadow_alpha: float = 0.5  # darker than this fraction of the background: not a shadow
     chroma_angle: float = 0.08  # chromatic distortion relative to brightness that marks a new colour
     noise_floor: float = 2.5  # grey levels
-    shadow_ncc: float = 0.3  # shadow candidates whose texture correlates less with the background's: foreground (0 off)
     min_area_frac: float = 4e-4  # of the image area: smaller components are noise
     link_frac: float = 0.012  # fragments closer than this fraction of the image height are one instance
     new_track_area_frac: float = 8e-4
@@ -110,28 +107,7 @@ def foreground(img_hw3: np.ndarray, bg: Background, s: BuiltinSettings) -> np.nd
     darker = (1.0 - alpha) * bnorm > s.bright_k * sig
     # a darker pixel with background chromaticity is a shadow unless it is far too dark
     too_dark = darker & (alpha < s.shadow_alpha)
-    fg = chroma | brighter | too_dark
-    if s.shadow_ncc > 0:
-        # ... or unless it hides the background's texture: a shadow scales the floor's pattern,
-        # grey or brown clothes over a like-coloured floor replace it
-        fg |= darker & ~fg & _hides_texture(I, B, sig, s)
-    return fg
-
-
-def _hides_texture(I_hw3: np.ndarray, B_hw3: np.ndarray, sig_hw: np.ndarray, s: "BuiltinSettings") -> np.ndarray:
-    """Pixels whose neighbourhood (7 x 7) in the frame does not correlate with the background's,
-    where the background has texture well above its noise (normalised cross-correlation of luma)."""
-    i, b = I_hw3.mean(-1), B_hw3.mean(-1)
-    k = (7, 7)
-    mi, mb = cv2.boxFilter(i, -1, k), cv2.boxFilter(b, -1, k)
-    vi = cv2.boxFilter(i * i, -1, k) - mi * mi
-    vb = cv2.boxFilter(b * b, -1, k) - mb * mb
-    cov = cv2.boxFilter(i * b, -1, k) - mi * mb
-    textured = vb > (2.0 * sig_hw) ** 2
-    ncc = cov / np.sqrt(np.maximum(vi, 1e-3) * np.maximum(vb, 1e-3))
-    hides = (textured & (ncc < s.shadow_ncc)).astype(np.uint8)
-    # windows straddling a person's edge decorrelate too: an opening keeps regions, not rims
-    return cv2.morphologyEx(hides, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)) > 0
+    return chroma | brighter | too_dark
 
 
 def build_background(frames: list[np.ndarray], s: BuiltinSettings) -> Background:
