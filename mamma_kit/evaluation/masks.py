@@ -52,7 +52,7 @@ class CameraMaskEval:
     switches: int
     # (T, P) IoU of the best single track per frame, whatever person it was given: segmentation
     # alone, without the tracker's identities (NaN where the person is not visible)
-    best_track_iou_tp: np.ndarray | None = None
+    best_track_iou_tp: np.ndarray
 
 
 def compare_camera(pred: MaskTracks, gt: MaskTracks, min_area: int = 50, stride: int | None = None) -> CameraMaskEval:
