@@ -12,10 +12,12 @@ Per camera:
    background as a brightness ratio alpha = <I, B> / <B, B> and a chromatic distortion
    |I - alpha B| (Horprasert-style). A soft shadow darkens the background without changing
    its chromaticity (0.45 < alpha < 1, small distortion): background. Then opening/closing,
-   hole filling and connected components above a minimum area.
+   hole filling, a rim pass (``refine_rim``: a blurred or chroma-subsampled edge pixel is the
+   person's only if it covers at least half of it) and connected components above a minimum area.
 3. Tracking: each track's last mask, shifted by its velocity, predicts where it is. A component
    claimed by two or more predictions (people touching or crossing) is split pixel by pixel
-   between them by distance to each prediction and each track's colour histogram; a track
+   between them by distance to each prediction and each track's colour histogram (colour
+   evidence averaged over a small neighbourhood, so the cut follows regions, not single pixels); a track
    that gets (almost) nothing is occluded and coasts on its velocity. Components no prediction
    claims are matched to recently lost tracks by appearance and position (Hungarian), else
    start new tracks. Tracks lost for more than ``max_lost`` frames end; a person who comes back
@@ -55,12 +57,14 @@ class BuiltinSettings:
     claim_frac: float = 0.15  # a prediction claims a component holding this much of it
     occluded_frac: float = 0.12  # a track given less than this fraction of its predicted area is occluded
     colour_weight: float = 1.0
+    colour_smooth_frac: float = 0.006  # splitting touching people: colour evidence over this fraction of the height
     max_lost: int = 45  # frames a lost track can be re-identified
     reid_similarity: float = 0.5  # Bhattacharyya coefficient needed to re-identify a lost track
     velocity_smoothing: float = 0.5
     people: int | None = None  # how many people the capture shows (splits blobs of people side by side)
     use_board_plate: bool = True  # background from the camera's board video when it shows the same scene
     plate_max_differ: float = 0.35  # fraction of the image where plate and capture may differ (people)
+    edge_coverage: float = 0.5  # rim pixels are the person's if it covers this fraction of them (0: off)
 
 
 # ---- colour --------------------------------------------------------------------------
@@ -180,6 +184,44 @@ def _clean(fg: np.ndarray, s: BuiltinSettings, h: int) -> np.ndarray:
     return fill_holes(m > 0)
 
 
+def refine_rim(fg_hw: np.ndarray, img_hw3: np.ndarray, bg: Background, s: BuiltinSettings) -> np.ndarray:
+    """Decide the pixels on a mask's rim by how much of each the person covers.
+
+    Compressed video blurs a person's edge over a few pixels (and 4:2:0 chroma shares one colour
+    between two pixels), so the colour test marks a rim a pixel or two wider than the person. A rim
+    pixel's colour is modelled as a blend I = a F + (1 - a) B of the person's colour F (around the nearest
+    pixel deeper inside the mask) and the background's B; it belongs to the person if a >= ``edge_coverage``.
+    Pixels just outside the mask are tested the same way. Where the person's colour is too close
+    to the background's for a to be measured, the colour test's answer stands.
+    """
+    m = fg_hw.astype(np.uint8)
+    k3 = np.ones((3, 3), np.uint8)
+    inner = cv2.erode(m, k3, iterations=2)
+    if not inner.any():
+        return fg_hw
+    band = (cv2.dilate(m, k3) > 0) & (inner == 0)
+    dist, lab = cv2.distanceTransformWithLabels(1 - inner, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    zy, zx = np.nonzero(inner)
+    pos_l2 = np.zeros((int(lab.max()) + 1, 2), np.int64)
+    pos_l2[lab[zy, zx]] = np.stack([zy, zx], 1)
+    by, bx = np.nonzero(band & (dist <= 4.5))
+    src = pos_l2[lab[by, bx]]
+    # the person's colour: mean of the interior over 5x5 (normalised convolution: less noise)
+    w_hw = cv2.blur(inner.astype(np.float32), (5, 5))
+    sum_hw3 = cv2.blur(img_hw3.astype(np.float32) * inner[..., None], (5, 5))
+    I = img_hw3[by, bx].astype(np.float32)
+    F = sum_hw3[src[:, 0], src[:, 1]] / np.maximum(w_hw[src[:, 0], src[:, 1]], 1e-6)[:, None]
+    B = bg.mean_hw3[by, bx]
+    d = F - B
+    dd = (d * d).sum(-1)
+    a = ((I - B) * d).sum(-1) / np.maximum(dd, 1e-6)
+    sig = bg.noise_hw[by, bx]
+    measurable = dd > (4.0 * sig) ** 2 * 3
+    out = fg_hw.copy()
+    out[by[measurable], bx[measurable]] = a[measurable] >= s.edge_coverage
+    return out
+
+
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """Fill enclosed holes: what the border cannot reach through background is foreground."""
     h, w = mask.shape
@@ -251,12 +293,15 @@ def _stacked(c: np.ndarray, m: np.ndarray, h: int) -> bool:
 
 
 def split_component(comp: np.ndarray, preds: list[np.ndarray], hists: list[np.ndarray], cidx: np.ndarray,
-                    colour_weight: float) -> tuple[list[np.ndarray], list[float]]:
+                    colour_weight: float, smooth_px: float = 0.0) -> tuple[list[np.ndarray], list[float]]:
     """Share a component's pixels among the predicted masks of the tracks that claim it.
 
     Each pixel goes to the track maximising -distance to its prediction (in units of a tenth of
-    the prediction's size) + colour_weight * log colour likelihood under its histogram. Returns
-    the part per track and its mean posterior (a score)."""
+    the prediction's size) + colour_weight * log colour likelihood under its histogram, averaged over
+    a Gaussian neighbourhood of ``smooth_px`` (one pixel's colour is weak evidence: a shirt's
+    shadowed fold can match the other person's trousers, and unsmoothed choices fray the boundary,
+    which the next frame's prediction then carries forward). Returns the part per track and its
+    mean posterior (a score)."""
     ys, xs = np.nonzero(comp)
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     pad = 4
@@ -264,12 +309,19 @@ def split_component(comp: np.ndarray, preds: list[np.ndarray], hists: list[np.nd
     y1, x1 = min(comp.shape[0], y1 + pad), min(comp.shape[1], x1 + pad)
     sub = comp[y0:y1, x0:x1]
     py, px = np.nonzero(sub)
+    wsum_hw = cv2.GaussianBlur(sub.astype(np.float32), (0, 0), smooth_px) if smooth_px >= 0.5 else None
     scores = []
     for p, h in zip(preds, hists):
         ps = p[y0:y1, x0:x1]
         dist = cv2.distanceTransform((~ps).astype(np.uint8), cv2.DIST_L2, 3)[py, px]
         size = max(np.sqrt(max(p.sum(), 1.0)), 4.0)
-        col = np.log(h[cidx[y0:y1, x0:x1][py, px]]) if h is not None else 0.0
+        if h is not None:
+            col_hw = np.log(h[cidx[y0:y1, x0:x1]]).astype(np.float32)
+            if smooth_px >= 0.5:  # colour evidence of the neighbourhood, over the component's pixels only
+                col_hw = cv2.GaussianBlur(col_hw * sub, (0, 0), smooth_px) / np.maximum(wsum_hw, 1e-6)
+            col = col_hw[py, px]
+        else:
+            col = 0.0
         scores.append(-dist / (0.1 * size) + colour_weight * col)
     S = np.stack(scores)  # (K, n)
     lab = np.argmax(S, 0)
@@ -359,7 +411,7 @@ class Tracker:
                 pure.add(k)
             else:
                 parts, conf = split_component(c, [preds[k] for k in who], [live[k].hist for k in who], cidx,
-                                              s.colour_weight)
+                                              s.colour_weight, s.colour_smooth_frac * self.h)
                 for k, m, sc in zip(who, parts, conf):
                     if m.sum() < s.occluded_frac * pred_area[k]:
                         continue  # occluded: coasts on its prediction
@@ -508,6 +560,8 @@ class BuiltinBackend:
             ti = int(np.argmin(np.abs(times - t)))
             small = prep(img)
             fg = _clean(foreground(small, bg, s), s, small.shape[0])
+            if s.edge_coverage > 0:
+                fg = refine_rim(fg, small, bg, s)
             out = tracker.step(ti, fg, colour_index(small))
             for k, (m, sc) in out.items():
                 if f != 1.0:
