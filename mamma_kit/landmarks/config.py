@@ -171,8 +171,7 @@ TINY = MammaNetConfig(
 CONFIGS: dict[str, MammaNetConfig] = {
     c.name: c for c in (
         OFFICIAL, EMBEDDED, EMBEDDED_256, TINY,
-        # the shipped baseline was trained before mask_in_stem / detach_decoder_memory
-        replace(EMBEDDED, name="embedded-single", queries="single", mask_in_stem=False, detach_decoder_memory=False),
+        replace(EMBEDDED, name="embedded-single", queries="single"),
         replace(EMBEDDED, name="embedded-nomask", use_mask=False, mask_in_stem=False),
         replace(OFFICIAL, name="official-single", queries="single"),
         replace(TINY, name="tiny-single", queries="single"),
