@@ -216,7 +216,7 @@ def refine_rim(fg_hw: np.ndarray, img_hw3: np.ndarray, bg: Background, s: Builti
     dd = (d * d).sum(-1)
     a = ((I - B) * d).sum(-1) / np.maximum(dd, 1e-6)
     sig = bg.noise_hw[by, bx]
-    measurable = dd > (4.0 * sig) ** 2 * 3
+    measurable = dd > 3 * (4.0 * sig) ** 2  # |F - B| above 4 noise sigmas in each of 3 channels
     out = fg_hw.copy()
     out[by[measurable], bx[measurable]] = a[measurable] >= s.edge_coverage
     return out
