@@ -279,3 +279,41 @@ def test_split_follows_colour_regions_not_single_pixels():
         parts, _ = split_component(comp, preds, [hist_a / hist_a.sum(), hist_b / hist_b.sum()], cidx, 1.0, smooth)
         iou[smooth] = min(_iou(parts[0], comp & left), _iou(parts[1], comp & ~left))
     assert iou[2.0] > 0.97 and iou[2.0] > iou[0.0] + 0.1, iou
+
+
+def test_large_enclosed_background_stays_open():
+    """Hole filling restores clothes the background's colour cut out of a person; a large hole is
+    floor seen between two people (or legs) with limbs and shadows around it, and stays open."""
+    from mamma_kit.masks.builtin import enclosed
+
+    m = np.zeros((H, W), bool)
+    m[20:140, 40:60] = m[20:140, 120:140] = True  # two people
+    m[20:30, 40:140] = m[130:140, 40:140] = True  # an arm and a shadow joining them
+    m[70:72, 48:50] = False  # a small hole inside the first person
+    holes = enclosed(m)
+    assert holes[71, 49] and holes[80, 90]
+    large = enclosed(m, min_area=50)
+    assert large[80, 90] and not large[71, 49]
+    assert large.sum() == 100 * 60
+
+
+def test_a_track_lets_go_of_a_second_person():
+    """Two people who start as one blob (touching in the first frame) then walk a few pixels apart
+    stay one linked component; the track keeps the one its prediction covers and the other gets
+    its own track."""
+    from mamma_kit.masks.builtin import BuiltinSettings, Tracker
+
+    tr = Tracker((H, W), BuiltinSettings())
+    cidx = np.zeros((H, W), np.int64)
+    ids = []
+    for t in range(8):
+        a, _ = _person_mask(100 - 1.0 * t, 150, 100)
+        b, _ = _person_mask(130 + 1.0 * t, 140, 90)
+        out = tr.step(t, a | b, cidx)
+        owner = {k: (np.count_nonzero(m & a), np.count_nonzero(m & b)) for k, (m, _) in out.items()}
+        ids.append(owner)
+    first, last = ids[0], ids[-1]
+    assert len(first) == 1  # one blob: one track
+    assert len(last) == 2
+    for k, (on_a, on_b) in last.items():
+        assert min(on_a, on_b) == 0 and max(on_a, on_b) > 500, last

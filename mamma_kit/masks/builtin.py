@@ -12,13 +12,16 @@ Per camera:
    background as a brightness ratio alpha = <I, B> / <B, B> and a chromatic distortion
    |I - alpha B| (Horprasert-style). A soft shadow darkens the background without changing
    its chromaticity (0.45 < alpha < 1, small distortion): background. Then opening/closing,
-   hole filling, a rim pass (``refine_rim``: a blurred or chroma-subsampled edge pixel is the
+   hole filling (for tracking; the masks written keep large holes open: floor seen between two
+   people), a rim pass (``refine_rim``: a blurred or chroma-subsampled edge pixel is the
    person's only if it covers at least half of it) and connected components above a minimum area.
 3. Tracking: each track's last mask, shifted by its velocity, predicts where it is. A component
    claimed by two or more predictions (people touching or crossing) is split pixel by pixel
    between them by distance to each prediction and each track's colour histogram (colour
    evidence averaged over a small neighbourhood, so the cut follows regions, not single pixels); a track
-   that gets (almost) nothing is occluded and coasts on its velocity. Components no prediction
+   that gets (almost) nothing is occluded and coasts on its velocity. A track holding two
+   person-like pieces side by side lets go of the one its prediction covers least (two people who
+   came in together, or walked a few pixels apart). Components no prediction
    claims are matched to recently lost tracks by appearance and position (Hungarian), else
    start new tracks. Tracks lost for more than ``max_lost`` frames end; a person who comes back
    later gets a new track (cross-view matching rejoins it with its person).
@@ -54,6 +57,7 @@ class BuiltinSettings:
     min_area_frac: float = 4e-4  # of the image area: smaller components are noise
     link_frac: float = 0.012  # fragments closer than this fraction of the image height are one instance
     new_track_area_frac: float = 8e-4
+    border_area_factor: float = 0.5
     claim_frac: float = 0.15  # a prediction claims a component holding this much of it
     occluded_frac: float = 0.12  # a track given less than this fraction of its predicted area is occluded
     colour_weight: float = 1.0
@@ -65,6 +69,7 @@ class BuiltinSettings:
     use_board_plate: bool = True  # background from the camera's board video when it shows the same scene
     plate_max_differ: float = 0.35  # fraction of the image where plate and capture may differ (people)
     edge_coverage: float = 0.5  # rim pixels are the person's if it covers this fraction of them (0: off)
+    max_hole_frac: float = 2e-4  # holes larger than this fraction of the image stay open in the masks (0: fill all)
 
 
 # ---- colour --------------------------------------------------------------------------
@@ -171,17 +176,22 @@ def _radius(h: int) -> int:
     return max(1, int(round(h / 360)))
 
 
-def _clean(fg: np.ndarray, s: BuiltinSettings, h: int) -> np.ndarray:
+def _denoise(fg: np.ndarray, h: int) -> np.ndarray:
     """Median filter (drops speckle without eating thin limbs the way an opening does at low
-    resolution), a small closing, hole filling."""
+    resolution), a small closing."""
     r = _radius(h)
     m = cv2.medianBlur(fg.astype(np.uint8) * 255, 3 if r < 2 else 5) > 0
     if r >= 2:
         k_open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r - 1, 2 * r - 1))
         m = cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN, k_open) > 0
     k_close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    m = cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_CLOSE, k_close)
-    return fill_holes(m > 0)
+    return cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_CLOSE, k_close) > 0
+
+
+def _clean(fg: np.ndarray, s: BuiltinSettings, h: int) -> np.ndarray:
+    """Denoised foreground with its holes filled."""
+    m = _denoise(fg, h)
+    return m | enclosed(m)
 
 
 def refine_rim(fg_hw: np.ndarray, img_hw3: np.ndarray, bg: Background, s: BuiltinSettings) -> np.ndarray:
@@ -214,23 +224,29 @@ def refine_rim(fg_hw: np.ndarray, img_hw3: np.ndarray, bg: Background, s: Builti
     B = bg.mean_hw3[by, bx]
     d = F - B
     dd = (d * d).sum(-1)
-    a = ((I - B) * d).sum(-1) / np.maximum(dd, 1e-6)
     sig = bg.noise_hw[by, bx]
     measurable = dd > 3 * (4.0 * sig) ** 2  # |F - B| above 4 noise sigmas in each of 3 channels
+    a = ((I - B) * d).sum(-1) / np.maximum(dd, 1e-6)
     out = fg_hw.copy()
     out[by[measurable], bx[measurable]] = a[measurable] >= s.edge_coverage
     return out
 
 
-def fill_holes(mask: np.ndarray) -> np.ndarray:
-    """Fill enclosed holes: what the border cannot reach through background is foreground."""
+def enclosed(mask: np.ndarray, min_area: int = 0) -> np.ndarray:
+    """Background the image border cannot reach (holes of the mask); with ``min_area`` only the
+    holes larger than that many pixels."""
     h, w = mask.shape
     pad = np.zeros((h + 2, w + 2), np.uint8)
     pad[1:-1, 1:-1] = mask
-    flood = pad.copy()
     ff = np.zeros((h + 4, w + 4), np.uint8)
-    cv2.floodFill(flood, ff, (0, 0), 1)
-    return (pad | (1 - flood))[1:-1, 1:-1].astype(bool)
+    cv2.floodFill(pad, ff, (0, 0), 1)
+    holes = (1 - pad)[1:-1, 1:-1]
+    if min_area > 0 and holes.any():
+        n, lab, st, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
+        large = st[:, cv2.CC_STAT_AREA] > min_area
+        large[0] = False
+        holes = large[lab]
+    return holes.astype(bool)
 
 
 def components(mask: np.ndarray, min_area: int, link_px: int = 0) -> list[np.ndarray]:
@@ -417,6 +433,7 @@ class Tracker:
                         continue  # occluded: coasts on its prediction
                     prev = out.get(k)
                     out[k] = ((prev[0] | m) if prev else m, sc)
+        unclaimed += self._part_company(out, preds, pure)
         # fragments of a person already found this frame (clothes the colour of the background cut
         # people in two): stacked above or below its mask -> part of it, not a new person
         rest = []
@@ -429,7 +446,9 @@ class Tracker:
         unclaimed = rest
         # re-identify lost tracks, else start new ones
         lost = [k for k, tr in live.items() if k not in out and t - tr.last_seen > 0]
-        big = [c for c in unclaimed if c.sum() >= s.new_track_area_frac * self.area_px]
+        # someone entering through the image border shows a hand first: smaller pieces count there
+        big = [c for c in unclaimed
+               if c.sum() >= s.new_track_area_frac * self.area_px * (s.border_area_factor if self._at_border(c) else 1.0)]
         if big and lost:
             C = np.full((len(big), len(lost)), 1e6)
             for i, c in enumerate(big):
@@ -481,6 +500,41 @@ class Tracker:
 
 
 # ---- the backend -------------------------------------------------------------------------
+    def _at_border(self, c: np.ndarray) -> bool:
+        return bool(c[0].any() or c[-1].any() or c[:, 0].any() or c[:, -1].any())
+
+    def _part_company(self, out: dict, preds: dict, pure: set) -> list[np.ndarray]:
+        """A track whose mask holds two person-like pieces side by side followed two people who
+        walked in together, touched when it started, or passed close (a few pixels apart they form
+        one linked component): the piece its prediction covers best keeps the track; the others are
+        returned as unclaimed (re-identified or new tracks). A person broken up by clothes the colour
+        of the background breaks into pieces above one another (``_stacked``) or into a small piece
+        (an arm): those stay. With a head count, it is not exceeded."""
+        s = self.s
+        freed = []
+        big = s.new_track_area_frac * self.area_px
+        n_people = sum(1 for m, _ in out.values() if m.sum() >= big)  # slivers do not count as people
+        for k in list(out):
+            m_k = out[k][0]
+            if k not in pure or m_k.sum() < 2 * big:  # not a part split off a shared component
+                continue
+            lst = components(m_k, max(1, int(big)))
+            if len(lst) < 2:
+                continue
+            p = preds.get(k)
+            lst.sort(key=lambda c: -(np.count_nonzero(c & p) if p is not None else int(c.sum())))
+            main = lst[0]
+            mx0, my0, mx1, my1 = _box(main)
+            for c in lst[1:]:
+                x0, y0, x1, y1 = _box(c)
+                person_like = y1 - y0 >= 0.5 * (my1 - my0)  # not a limb
+                apart = min(x1, mx1) - max(x0, mx0) <= 0.5 * min(x1 - x0, mx1 - mx0)  # side by side
+                room = not s.people or n_people + len(freed) < s.people
+                if person_like and apart and room and not _stacked(c, main, self.h):
+                    freed.append(c)
+                    out[k] = (out[k][0] & ~c, out[k][1])
+        return freed
+
     def _split_blobs(self, t: int, out: dict, pure: set, cidx: np.ndarray) -> None:
         """Fewer tracks than the people the user said are there: a blob holding two people side
         by side (they came in together, or touch from the first frame) becomes two tracks; from
@@ -559,11 +613,19 @@ class BuiltinBackend:
         for t, img in log.track(rd.frames(), f"track {cam.name}", total=n):
             ti = int(np.argmin(np.abs(times - t)))
             small = prep(img)
-            fg = _clean(foreground(small, bg, s), s, small.shape[0])
+            dn = _denoise(foreground(small, bg, s), small.shape[0])
+            holes = enclosed(dn)
+            # tracking sees people with their holes filled (clothes of the background's colour);
+            # the masks written keep the large holes open: floor seen between two people or
+            # between someone's legs, enclosed by limbs and shadows
+            gaps = enclosed(dn, int(s.max_hole_frac * dn.size)) if s.max_hole_frac > 0 else None
+            fg = dn | holes
             if s.edge_coverage > 0:
                 fg = refine_rim(fg, small, bg, s)
             out = tracker.step(ti, fg, colour_index(small))
             for k, (m, sc) in out.items():
+                if gaps is not None:
+                    m = m & ~gaps
                 if f != 1.0:
                     m = cv2.resize(m.astype(np.uint8) * 255, (W, H), interpolation=cv2.INTER_LINEAR) > 127
                 out_tracks.add(ti, k, m, sc)
