@@ -243,7 +243,7 @@ def test_rim_pixels_go_to_whoever_covers_most_of_them():
         img = cv2.GaussianBlur(sharp, (0, 0), 1.5) + rng.normal(0, 1.5, sharp.shape)
         img = np.clip(img, 0, 255).astype(np.uint8)
         bg = Background(np.broadcast_to(bg_rgb, (H, W, 3)).astype(np.float32), np.full((H, W), 3.0, np.float32))
-        raw = _clean(foreground(img, bg, s), s, H)
+        raw = _clean(foreground(img, bg, s), H)
         refined = refine_rim(raw, img, bg, s)
         if should_change:
             # the blurred rim is in the colour test's mask, not in the refined one
@@ -284,7 +284,7 @@ def test_split_follows_colour_regions_not_single_pixels():
 def test_large_enclosed_background_stays_open():
     """Hole filling restores clothes the background's colour cut out of a person; a large hole is
     floor seen between two people (or legs) with limbs and shadows around it, and stays open."""
-    from mamma_kit.masks.builtin import enclosed
+    from mamma_kit.masks.builtin import enclosed, larger_than
 
     m = np.zeros((H, W), bool)
     m[20:140, 40:60] = m[20:140, 120:140] = True  # two people
@@ -292,7 +292,7 @@ def test_large_enclosed_background_stays_open():
     m[70:72, 48:50] = False  # a small hole inside the first person
     holes = enclosed(m)
     assert holes[71, 49] and holes[80, 90]
-    large = enclosed(m, min_area=50)
+    large = larger_than(holes, 50)
     assert large[80, 90] and not large[71, 49]
     assert large.sum() == 100 * 60
 

@@ -57,7 +57,7 @@ class BuiltinSettings:
     min_area_frac: float = 4e-4  # of the image area: smaller components are noise
     link_frac: float = 0.012  # fragments closer than this fraction of the image height are one instance
     new_track_area_frac: float = 8e-4
-    border_area_factor: float = 0.5
+    border_area_factor: float = 0.5  # new tracks touching the image border need this share of that area
     claim_frac: float = 0.15  # a prediction claims a component holding this much of it
     occluded_frac: float = 0.12  # a track given less than this fraction of its predicted area is occluded
     colour_weight: float = 1.0
@@ -124,7 +124,7 @@ def build_background(frames: list[np.ndarray], s: BuiltinSettings) -> Background
     med = np.median(stack, 0)
     noise0 = np.full(med.shape[:2], s.noise_floor * 2, np.float32)
     bg = Background(med, noise0)
-    fg = np.stack([_clean(foreground(f, bg, s), s, f.shape[0]) for f in frames])  # (N, H, W)
+    fg = np.stack([_clean(foreground(f, bg, s), f.shape[0]) for f in frames])  # (N, H, W)
     dev = np.abs(stack - med).mean(-1)  # (N, H, W)
     keep = ~fg
     enough = keep.sum(0) >= max(3, len(frames) // 4)
@@ -188,7 +188,7 @@ def _denoise(fg: np.ndarray, h: int) -> np.ndarray:
     return cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_CLOSE, k_close) > 0
 
 
-def _clean(fg: np.ndarray, s: BuiltinSettings, h: int) -> np.ndarray:
+def _clean(fg: np.ndarray, h: int) -> np.ndarray:
     """Denoised foreground with its holes filled."""
     m = _denoise(fg, h)
     return m | enclosed(m)
@@ -232,21 +232,22 @@ def refine_rim(fg_hw: np.ndarray, img_hw3: np.ndarray, bg: Background, s: Builti
     return out
 
 
-def enclosed(mask: np.ndarray, min_area: int = 0) -> np.ndarray:
-    """Background the image border cannot reach (holes of the mask); with ``min_area`` only the
-    holes larger than that many pixels."""
+def enclosed(mask: np.ndarray) -> np.ndarray:
+    """Background the image border cannot reach: the holes of the mask."""
     h, w = mask.shape
     pad = np.zeros((h + 2, w + 2), np.uint8)
     pad[1:-1, 1:-1] = mask
     ff = np.zeros((h + 4, w + 4), np.uint8)
     cv2.floodFill(pad, ff, (0, 0), 1)
-    holes = (1 - pad)[1:-1, 1:-1]
-    if min_area > 0 and holes.any():
-        n, lab, st, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
-        large = st[:, cv2.CC_STAT_AREA] > min_area
-        large[0] = False
-        holes = large[lab]
-    return holes.astype(bool)
+    return (1 - pad)[1:-1, 1:-1].astype(bool)
+
+
+def larger_than(mask: np.ndarray, area: int) -> np.ndarray:
+    """The 4-connected parts of the mask with more than ``area`` pixels."""
+    n, lab, st, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=4)
+    large = st[:, cv2.CC_STAT_AREA] > area
+    large[0] = False
+    return large[lab]
 
 
 def components(mask: np.ndarray, min_area: int, link_px: int = 0) -> list[np.ndarray]:
@@ -498,8 +499,6 @@ class Tracker:
                 tr.hist = hc if tr.hist is None else 0.8 * tr.hist + 0.2 * hc
         return out
 
-
-# ---- the backend -------------------------------------------------------------------------
     def _at_border(self, c: np.ndarray) -> bool:
         return bool(c[0].any() or c[-1].any() or c[:, 0].any() or c[:, -1].any())
 
@@ -558,6 +557,7 @@ class Tracker:
             tr.area = float(two[keep].sum())
 
 
+# ---- the backend -------------------------------------------------------------------------
 class BuiltinBackend:
     name = "builtin"
 
@@ -618,7 +618,7 @@ class BuiltinBackend:
             # tracking sees people with their holes filled (clothes of the background's colour);
             # the masks written keep the large holes open: floor seen between two people or
             # between someone's legs, enclosed by limbs and shadows
-            gaps = enclosed(dn, int(s.max_hole_frac * dn.size)) if s.max_hole_frac > 0 else None
+            gaps = larger_than(holes, int(s.max_hole_frac * dn.size)) if s.max_hole_frac > 0 else None
             fg = dn | holes
             if s.edge_coverage > 0:
                 fg = refine_rim(fg, small, bg, s)
