@@ -317,3 +317,59 @@ def test_a_track_lets_go_of_a_second_person():
     assert len(last) == 2
     for k, (on_a, on_b) in last.items():
         assert min(on_a, on_b) == 0 and max(on_a, on_b) > 500, last
+
+
+def _tracker_with(masks: dict, people: int | None = None):
+    """A Tracker whose tracks (id -> mask) were all seen, standing still, in frame 0."""
+    from mamma_kit.masks.builtin import BuiltinSettings, Track, Tracker, _centroid
+
+    tr = Tracker((H, W), BuiltinSettings(people=people))
+    for k, m in masks.items():
+        tr.tracks[k] = Track(k, m, _centroid(m), last_seen=0, area=float(m.sum()))
+    tr.next_id = max(masks) + 1
+    return tr
+
+
+def test_a_track_seen_whole_leaves_its_ghost_behind():
+    """A track whose person stands alone (a component only it claims) but whose last mask still
+    holds a patch where it was hidden behind someone else takes no share of that other person."""
+    a, _ = _person_mask(60, 150, 100)
+    b, _ = _person_mask(170, 150, 100)
+    ghost = np.zeros_like(b)
+    ghost[80:110, 160:180] = True  # a patch inside b's torso, well over the claim threshold
+    tr = _tracker_with({0: a | (ghost & b), 1: b})
+    out = tr.step(1, a | b, np.zeros((H, W), np.int64))
+    assert np.count_nonzero(out[0][0] & b) == 0
+    assert np.count_nonzero(out[1][0] & b) == np.count_nonzero(b)
+
+
+def test_head_count_makes_room_by_joining_one_persons_top_and_bottom():
+    """Three people said; one track holds two people a few pixels apart, two tracks hold the top
+    and the legs of a third. The legs and top become one track so the pair can part."""
+    a, _ = _person_mask(70, 150, 100)
+    b, _ = _person_mask(101, 145, 90)
+    c, c_top = _person_mask(200, 150, 100)
+    from mamma_kit.masks.builtin import components
+
+    assert len(components(a | b, 10, 2)) == 1 and len(components(a | b, 10)) == 2  # linked, not touching
+    tr = _tracker_with({0: a | b, 1: c_top, 2: c & ~c_top}, people=3)
+    out = tr.step(1, a | b | c, np.zeros((H, W), np.int64))
+    assert len(out) == 3
+    holders = {name: [k for k, (m, _) in out.items() if np.count_nonzero(m & p) > 0.5 * p.sum()]
+               for name, p in (("a", a), ("b", b), ("c", c))}
+    assert all(len(v) == 1 for v in holders.values()), holders
+    assert len({v[0] for v in holders.values()}) == 3, holders
+
+
+def test_specks_leave_with_the_person_they_are_next_to():
+    from mamma_kit.masks.builtin import Tracker
+
+    piece = np.zeros((H, W), bool)
+    piece[40:120, 40:70] = True
+    rest = np.zeros((H, W), bool)
+    rest[40:120, 150:180] = True
+    near_piece, near_rest = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    near_piece[60:62, 74:76] = True
+    near_rest[60:62, 144:146] = True
+    got = Tracker._crumbs_of(piece, piece | rest | near_piece | near_rest, 20)
+    assert np.array_equal(got, near_piece)

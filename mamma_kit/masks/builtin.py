@@ -19,9 +19,12 @@ Per camera:
    claimed by two or more predictions (people touching or crossing) is split pixel by pixel
    between them by distance to each prediction and each track's colour histogram (colour
    evidence averaged over a small neighbourhood, so the cut follows regions, not single pixels); a track
-   that gets (almost) nothing is occluded and coasts on its velocity. A track holding two
-   person-like pieces side by side lets go of the one its prediction covers least (two people who
-   came in together, or walked a few pixels apart). Components no prediction
+   that gets (almost) nothing is occluded and coasts on its velocity. A track that alone claims a
+   component (its person seen whole) takes no share of another (where it was while hidden). A
+   track holding two person-like pieces side by side lets go of the one its prediction covers
+   least (two people who came in together, or walked a few pixels apart); if the head count is
+   full, two tracks lying one above the other (one person's top and legs) are joined to make room.
+   Components no prediction
    claims are matched to recently lost tracks by appearance and position (Hungarian), else
    start new tracks. Tracks lost for more than ``max_lost`` frames end; a person who comes back
    later gets a new track (cross-view matching rejoins it with its person).
@@ -412,6 +415,7 @@ class Tracker:
         out: dict[int, tuple[np.ndarray, float]] = {}
         pure: set[int] = set()
         unclaimed = []
+        whos = []
         for ci, c in enumerate(comps):
             who = [recent[j] for j in np.flatnonzero(claim[ci] >= s.claim_frac)]
             if not who and len(recent) and claim[ci].max() > 0:
@@ -419,6 +423,10 @@ class Tracker:
                 j = int(np.argmax(claim[ci]))
                 if claim[:, j].argmax() == ci and claim[ci, j] > 0.02:
                     who = [recent[j]]
+            whos.append(who)
+        self._leave_ghosts(comps, whos, claim, recent, preds)
+        for ci, c in enumerate(comps):
+            who = whos[ci]
             if not who:
                 unclaimed.append(c)
             elif len(who) == 1:
@@ -499,6 +507,29 @@ class Tracker:
                 tr.hist = hc if tr.hist is None else 0.8 * tr.hist + 0.2 * hc
         return out
 
+    def _leave_ghosts(self, comps: list, whos: list, claim: np.ndarray, recent: list, preds: dict) -> None:
+        """A track that alone claims a component (its person, seen whole) does not also take a share
+        of a component other people claim, unless the share lies above or below its own component
+        (one person in two pieces): that share is where the person was while hidden behind
+        another, a ghost the prediction would otherwise carry forward. Edits ``whos`` in place."""
+        col = {k: j for j, k in enumerate(recent)}
+        home: dict[int, list[int]] = {}
+        for ci, who in enumerate(whos):
+            if len(who) == 1:
+                home.setdefault(who[0], []).append(ci)
+        for ci, who in enumerate(whos):
+            if len(who) < 2:
+                continue
+            keep = []
+            for k in who:
+                j = col[k]
+                mine = [h for h in home.get(k, []) if claim[h, j] >= claim[ci, j]]
+                share = comps[ci] & preds[k]
+                if mine and not any(_stacked(share, comps[h], self.h) for h in mine):
+                    continue
+                keep.append(k)
+            whos[ci] = keep
+
     def _at_border(self, c: np.ndarray) -> bool:
         return bool(c[0].any() or c[-1].any() or c[:, 0].any() or c[:, -1].any())
 
@@ -514,6 +545,8 @@ class Tracker:
         big = s.new_track_area_frac * self.area_px
         n_people = sum(1 for m, _ in out.values() if m.sum() >= big)  # slivers do not count as people
         for k in list(out):
+            if k not in out:  # merged away
+                continue
             m_k = out[k][0]
             if k not in pure or m_k.sum() < 2 * big:  # not a part split off a shared component
                 continue
@@ -526,13 +559,58 @@ class Tracker:
             mx0, my0, mx1, my1 = _box(main)
             for c in lst[1:]:
                 x0, y0, x1, y1 = _box(c)
-                person_like = y1 - y0 >= 0.5 * (my1 - my0)  # not a limb
+                # not a limb: half as tall, or a third of the area and upright (someone further away)
+                person_like = (y1 - y0 >= 0.5 * (my1 - my0)
+                               or (c.sum() >= 0.3 * main.sum() and y1 - y0 >= 1.2 * (x1 - x0)))
                 apart = min(x1, mx1) - max(x0, mx0) <= 0.5 * min(x1 - x0, mx1 - mx0)  # side by side
+                if not (person_like and apart) or _stacked(c, main, self.h):
+                    continue
                 room = not s.people or n_people + len(freed) < s.people
-                if person_like and apart and room and not _stacked(c, main, self.h):
+                if not room and self._merge_stacked(out, pure, big, keep=k):
+                    n_people, room = n_people - 1, True
+                if room:
+                    c = c | self._crumbs_of(c, out[k][0], big)
                     freed.append(c)
                     out[k] = (out[k][0] & ~c, out[k][1])
         return freed
+
+    def _merge_stacked(self, out: dict, pure: set, big: float, keep: int) -> bool:
+        """Two tracks this frame whose masks lie one above the other like one person's top and
+        bottom (a shirt and trousers of different colours followed as two people after an
+        occlusion) become one: the head count needs the place for two people seen side by side.
+        The larger keeps its id; ``keep`` is not merged away. True if a pair was merged."""
+        ks = [k for k in out if out[k][0].sum() >= big and k != keep]
+        best = None
+        for i, a in enumerate(ks):
+            for b in ks[i + 1:]:
+                ma, mb = out[a][0], out[b][0]
+                if _stacked(ma, mb, self.h) and (best is None or ma.sum() + mb.sum() > best[2]):
+                    best = (a, b, int(ma.sum() + mb.sum()))
+        if best is None:
+            return False
+        a, b, _ = best
+        if out[a][0].sum() < out[b][0].sum():
+            a, b = b, a
+        out[a] = (out[a][0] | out[b][0], min(out[a][1], out[b][1]))
+        del out[b]
+        self.tracks.pop(b, None)
+        pure.discard(b)
+        return True
+
+    @staticmethod
+    def _crumbs_of(piece: np.ndarray, mask: np.ndarray, min_area: float) -> np.ndarray:
+        """The specks of ``mask`` (parts under ``min_area``) nearer ``piece`` than the rest of it:
+        they leave with the piece, or they would still tie the two people together."""
+        n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+        small = np.bincount(lab.ravel(), minlength=n) < min_area
+        small[0] = False
+        crumbs = small[lab] & ~piece
+        rest = mask & ~piece & ~crumbs
+        if not crumbs.any() or not rest.any():
+            return crumbs
+        d_piece = cv2.distanceTransform((~piece).astype(np.uint8), cv2.DIST_L2, 3)
+        d_rest = cv2.distanceTransform((~rest).astype(np.uint8), cv2.DIST_L2, 3)
+        return crumbs & (d_piece < d_rest)
 
     def _split_blobs(self, t: int, out: dict, pure: set, cidx: np.ndarray) -> None:
         """Fewer tracks than the people the user said are there: a blob holding two people side
