@@ -524,9 +524,8 @@ class Tracker:
             for k in who:
                 j = col[k]
                 mine = [h for h in home.get(k, []) if claim[h, j] >= claim[ci, j]]
-                share = comps[ci] & preds[k]
-                if mine and not any(_stacked(share, comps[h], self.h) for h in mine):
-                    continue
+                if mine and not any(_stacked(comps[ci] & preds[k], comps[h], self.h) for h in mine):
+                    continue  # a ghost
                 keep.append(k)
             whos[ci] = keep
 
