@@ -27,12 +27,13 @@ import numpy as np
 # rendered with their board sessions: the builtin backend takes its background from the board
 # videos (the cameras do not move between board and capture); "capture median" is without it
 # crowd-6 twice: at 320x180 people are 40-60 px tall (a 1-px boundary band is a third of a limb)
-# and at 640x360, nearer what a phone records
 # and at 640x360, nearer what a phone records; then two more crowds from other seeds (other
 # people, clothes, motions and places), never looked at while tuning the tracker
+# (recipe, folder, frames, render scale, seed or None for the recipe's own)
 CASES = [("crowd-6", "crowd6_s025_f60_board", 60, 0.25, None), ("crowd-6", "crowd6_s050_f60_board", 60, 0.5, None),
          ("iphone-outdoor-duo", "duo_s050_f60_board", 60, 0.5, None),
-         ("crowd-6", "crowd6_s050_f60_board_seed11", 60, 0.5, 11), ("crowd-6", "crowd6_s050_f60_board_seed23", 60, 0.5, 23)]
+         ("crowd-6", "crowd6_s050_f60_board_seed11", 60, 0.5, 11),
+         ("crowd-6", "crowd6_s050_f60_board_seed23", 60, 0.5, 23)]
 VARIANTS = {"builtin": [], "builtin, capture median only": ["--no-plate"]}
 
 
@@ -143,7 +144,8 @@ def main() -> None:
             evals = evaluate_cameras(ws, cams)
             s = summarize(evals)
             W, H = MaskTracks.load(ws.mask_file(cams[0])).image_size
-            print(f"\n{recipe}{f' seed {seed}' if seed else ''} ({len(cams)} cameras, {W}x{H}, {n_frames} camera-frames) backend {variant}: "
+            name = f"{recipe} seed {seed}" if seed else recipe
+            print(f"\n{name} ({len(cams)} cameras, {W}x{H}, {n_frames} camera-frames) backend {variant}: "
                   f"{secs / n_frames * 1000:.0f} ms per frame")
             print(f"  mean IoU separated {s['mean_iou_separated']}  ({s['instances_separated']} person-frames)")
             print(f"  mean IoU touching  {s['mean_iou_touching']}  ({s['instances_touching']} person-frames)")

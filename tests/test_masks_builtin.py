@@ -362,6 +362,8 @@ def test_head_count_makes_room_by_joining_one_persons_top_and_bottom():
 
 
 def test_specks_leave_with_the_person_they_are_next_to():
+    """When a track frees a person, the specks too small to be components go with whichever piece
+    is nearer: left behind, they would widen the track's box and glue the person back."""
     from mamma_kit.masks.builtin import Tracker
 
     piece = np.zeros((H, W), bool)
