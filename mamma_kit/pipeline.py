@@ -231,10 +231,13 @@ def _place(src: Path, dst: Path, copy: bool) -> str:
 
 def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path] | None = None,
                    board: str | None = None, names: list[str] | None = None, copy: bool = False,
-                   backend: str = "builtin", force: bool = False, people: int | None = None) -> dict:
+                   backend: str = "builtin", force: bool = False, people: int | None = None,
+                   calibration: str | Path | None = None) -> dict:
     """A capture workspace for a user's own videos: they are hard-linked (or copied) into
     WORKSPACE/videos and WORKSPACE/board, so that capture.toml holds only paths inside the
-    workspace, and each is checked to be a readable video before anything is written."""
+    workspace, and each is checked to be a readable video before anything is written.
+    ``calibration`` (any format calib convert reads) is written as WORKSPACE/calibration.toml
+    instead of calibrating from board videos."""
     from mamma_kit.video import VideoReader
 
     ws = Workspace(root, must_exist=False)
@@ -262,7 +265,15 @@ def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path
         if not p.is_file():
             raise UserError(f"video not found: {p}", "check the path")
         VideoReader(p).info  # a corrupt or non-video file ends here, before anything is written
+    rig = None if calibration is None else _given_calibration(Path(calibration), names, videos, bool(board_videos))
     ws.root.mkdir(parents=True, exist_ok=True)
+    if rig is not None:
+        from mamma_kit.core.calibfile import write_calibration
+        from mamma_kit.core.io import sha256_file
+        from mamma_kit.core.manifest import producer
+
+        write_calibration(ws.calibration, rig, producer=producer("mamma-kit init --calibration",
+                                                                 {"calibration": sha256_file(Path(calibration))}))
     cams, how = {}, {}
     for i, (n, v) in enumerate(zip(names, videos)):
         dst = ws.root / "videos" / f"{n}{v.suffix.lower()}"
@@ -286,4 +297,26 @@ def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path
     log.info(f"wrote {ws.capture_toml}: {len(cams)} cameras ({', '.join(names)}); videos "
              f"{', '.join(sorted(set(how.values())))}; next: mamma-kit capture-to-smplx {ws.root}")
     return {"workspace": str(ws.root), "capture_toml": str(ws.capture_toml), "cameras": cams,
-            "board": data.get("board", {}).get("spec")}
+            "board": data.get("board", {}).get("spec"),
+            "calibration": str(ws.calibration) if rig is not None else None}
+
+
+def _given_calibration(path: Path, names: list[str], videos: list[Path], has_board: bool):
+    """The capture's cameras, in video order, from a calibration file of any readable format;
+    each must be calibrated at its video's size."""
+    from mamma_kit.calibration.formats import read_rig
+    from mamma_kit.core.calibfile import check_rig_covers
+    from mamma_kit.core.camera import Rig
+    from mamma_kit.video import VideoReader
+
+    if has_board:
+        raise UserError("both board videos and --calibration given",
+                        "pass board videos to calibrate, or a calibration to use as it is, not both")
+    rig = read_rig(path)
+    check_rig_covers(rig, names, path)
+    for n, v in zip(names, videos):
+        w, h = VideoReader(v).size
+        if (w, h) != tuple(rig[n].size):
+            raise UserError(f"{path.name} calibrates camera {n} at {rig[n].size[0]}x{rig[n].size[1]} but {v.name} "
+                            f"is {w}x{h}", "use a calibration made at the videos' resolution and orientation")
+    return Rig([rig[n] for n in names])

@@ -18,6 +18,13 @@ format                  file(s) and conventions
                         Camera.meta and written back.
 ``opencv-json``         {"cameras": {name: {image_size, camera_matrix, dist_coeffs,
                         distortion_model, rvec, tvec}}}; world->camera
+``qualisys``            read only: QTM's .qca.txt (XML). Per <camera serial=name>: fov_video
+                        left/top/right/bottom (inclusive pixel bounds on the sensor),
+                        intrinsic focalLengthU/V, centerPointU/V (1/64 px, the centre on the
+                        whole sensor, so fov_video left/top are subtracted), radialDistortion1-3
+                        and tangentalDistortion1-2 (OpenCV k1-k3, p1, p2), transform r11..r33
+                        (camera->world rotation stored by columns) and x, y, z (camera
+                        position, mm). Qualisys camera axes are OpenCV's turned by pi about x.
 ======================  =====================================================================
 
 Every converter maps exactly (up to float round-off) what both formats can hold; a lens
@@ -28,6 +35,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Callable
 
@@ -40,7 +48,10 @@ from mamma_kit.core.camera import Camera, Rig, nearest_rotation, rodrigues, rotv
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import atomic_path, atomic_write_text, to_json, write_toml
 
+# formats read and written (every pair round-trips); READ_FORMATS adds those only read
 FORMATS = ("mamma-kit", "mamma-yaml", "easymocap", "anipose", "caliscope", "opencv-json")
+READ_ONLY_FORMATS = ("qualisys",)
+READ_FORMATS = FORMATS + READ_ONLY_FORMATS
 # lens models each format can hold
 SUPPORTED_MODELS = {
     "mamma-kit": {"radtan", "rational", "fisheye"},
@@ -339,6 +350,82 @@ def write_opencv_json(rig: Rig, path: Path) -> None:
     atomic_write_text(path, to_json({"cameras": cams}) + "\n")
 
 
+# ---- Qualisys QTM (.qca.txt), read only --------------------------------------------------
+QCA_UNIT = 64.0  # focal lengths and centre point are stored in 1/64 pixel
+# the Qualisys camera frame is OpenCV's turned by pi about x (y up, looking along -z)
+_QCA_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
+
+
+def _qca_values(cam_el, tag: str, keys: tuple[str, ...], cam: str, path: Path,
+                optional: tuple[str, ...] = ()) -> dict[str, float]:
+    el = cam_el.find(tag)
+    if el is None:
+        raise UserError(f"{path.name}: camera {cam} has no <{tag}> element", "fix the file or export it from QTM again")
+    out = {}
+    for k in keys:
+        v = el.get(k)
+        if v is None:
+            if k in optional:
+                out[k] = 0.0
+                continue
+            raise UserError(f"{path.name}: camera {cam}: <{tag}> is missing '{k}'",
+                            "fix the file or export it from QTM again")
+        try:
+            out[k] = float(v)
+        except ValueError:
+            out[k] = float("nan")
+        if not np.isfinite(out[k]):
+            raise UserError(f"{path.name}: camera {cam}: <{tag}> '{k}' is not a number ({v!r})", "fix the file")
+    return out
+
+
+def read_qualisys(path: Path) -> Rig:
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise UserError(f"{path.name} is not valid XML ({e})", "is this a Qualisys .qca.txt calibration?") from None
+    cams = root.findall("./cameras/camera") if root.tag == "calibration" else []
+    if not cams:
+        raise UserError(f"{path.name} has no <calibration><cameras><camera> elements",
+                        "is this a Qualisys .qca.txt calibration?")
+    out = []
+    for i, el in enumerate(cams):
+        name = el.get("serial")
+        if not name:
+            raise UserError(f"{path.name}: camera {i + 1} has no 'serial' (its name)", "fix the file")
+        fov = _qca_values(el, "fov_video", ("left", "top", "right", "bottom"), name, path)
+        w, h = int(fov["right"] - fov["left"]) + 1, int(fov["bottom"] - fov["top"]) + 1
+        if w <= 1 or h <= 1:
+            raise UserError(f"{path.name}: camera {name}: <fov_video> gives a {w}x{h} image", "fix the file")
+        f = _qca_values(el, "intrinsic", ("focalLengthU", "focalLengthV", "centerPointU", "centerPointV", "skew",
+                                          "radialDistortion1", "radialDistortion2", "radialDistortion3",
+                                          "tangentalDistortion1", "tangentalDistortion2"),
+                        name, path, optional=("skew", "radialDistortion3"))
+        fx, fy = f["focalLengthU"] / QCA_UNIT, f["focalLengthV"] / QCA_UNIT
+        cx, cy = f["centerPointU"] / QCA_UNIT - fov["left"], f["centerPointV"] / QCA_UNIT - fov["top"]
+        if fx <= 0 or fy <= 0 or not (0 <= cx < w and 0 <= cy < h):
+            raise UserError(f"{path.name}: camera {name}: focal length ({fx:.1f}, {fy:.1f}) px or principal point "
+                            f"({cx:.1f}, {cy:.1f}) px does not fit its {w}x{h} image",
+                            "is this a Qualisys .qca.txt calibration (intrinsics in 1/64 pixel)?")
+        K = np.array([[fx, f["skew"] / QCA_UNIT, cx], [0, fy, cy], [0, 0, 1.0]])
+        dist = [f["radialDistortion1"], f["radialDistortion2"], f["tangentalDistortion1"],
+                f["tangentalDistortion2"], f["radialDistortion3"]]
+        tr = _qca_values(el, "transform", tuple(f"r{a}{b}" for a in "123" for b in "123") + ("x", "y", "z"),
+                         name, path)
+        # stored by columns: (r11, r12, r13) is the first column of the camera->world rotation
+        R_cam_world = np.array([[tr[f"r{b}{a}"] for b in "123"] for a in "123"])
+        if (abs(np.linalg.det(R_cam_world) - 1) > 1e-3
+                or np.abs(R_cam_world @ R_cam_world.T - np.eye(3)).max() > 1e-3):
+            raise UserError(f"{path.name}: camera {name}: <transform> r11..r33 is not a rotation", "fix the file")
+        R = _QCA_TO_OPENCV @ nearest_rotation(R_cam_world).T
+        C = np.array([tr["x"], tr["y"], tr["z"]]) / 1000.0
+        # QTM's display rotation of the camera's image; the intrinsics refer to the stored frames
+        view = el.get("viewrotation", "0").strip()
+        meta = {} if view in ("", "0") else {"qualisys_viewrotation": view}
+        out.append(Camera(name, (w, h), K, dist, "radtan", R, -R @ C, meta=meta))
+    return Rig(out)
+
+
 # ---- dispatch -------------------------------------------------------------------------
 def _read_toml_any(path: Path) -> dict:
     try:
@@ -352,6 +439,8 @@ def infer_format(path: str | Path, for_writing: bool = False) -> str:
     """Guess a calibration format from the file name, and from its content when reading."""
     p = Path(path)
     name = p.name.lower()
+    if name.endswith((".qca.txt", ".qca")):
+        return "qualisys"
     if name in ("intri.yml", "extri.yml") or (p.is_dir() and (p / "intri.yml").exists()):
         return "easymocap"
     if name == "camera_array.toml":
@@ -378,7 +467,7 @@ def infer_format(path: str | Path, for_writing: bool = False) -> str:
     if p.suffix.lower() == ".toml" and for_writing and name == "calibration.toml":
         return "mamma-kit"
     raise UserError(f"cannot tell the calibration format of {p.name}",
-                    f"pass it with --from/--to (one of {', '.join(FORMATS)})")
+                    f"pass it with --from/--to (one of {', '.join(FORMATS if for_writing else READ_FORMATS)})")
 
 
 READERS: dict[str, Callable[[Path], Rig]] = {
@@ -388,6 +477,7 @@ READERS: dict[str, Callable[[Path], Rig]] = {
     "anipose": read_anipose,
     "caliscope": read_caliscope,
     "opencv-json": read_opencv_json,
+    "qualisys": read_qualisys,
 }
 WRITERS: dict[str, Callable[[Rig, Path], None]] = {
     "mamma-kit": lambda r, p: write_calibration(p, r),
@@ -399,9 +489,11 @@ WRITERS: dict[str, Callable[[Rig, Path], None]] = {
 }
 
 
-def _check_fmt(fmt: str) -> str:
-    if fmt not in FORMATS:
-        raise UserError(f"unknown calibration format '{fmt}'", f"use one of {', '.join(FORMATS)}")
+def _check_fmt(fmt: str, for_writing: bool = False) -> str:
+    if for_writing and fmt in READ_ONLY_FORMATS:
+        raise UserError(f"the {fmt} calibration format is read-only", f"write one of {', '.join(FORMATS)}")
+    if fmt not in READ_FORMATS:
+        raise UserError(f"unknown calibration format '{fmt}'", f"use one of {', '.join(READ_FORMATS)}")
     return fmt
 
 
@@ -417,7 +509,7 @@ def read_rig(path: str | Path, fmt: str | None = None) -> Rig:
 
 def write_rig(rig: Rig, path: str | Path, fmt: str | None = None) -> Path:
     p = Path(path)
-    fmt = _check_fmt(fmt or infer_format(p, for_writing=True))
+    fmt = _check_fmt(fmt or infer_format(p, for_writing=True), for_writing=True)
     WRITERS[fmt](rig, p)
     return p
 
@@ -427,7 +519,7 @@ def convert(src: str | Path, dst: str | Path, src_fmt: str | None = None, dst_fm
     """Read ``src`` and write ``dst``; optionally rename cameras (in order) and scale
     translations (e.g. 0.001 for a file in millimetres)."""
     src_fmt = _check_fmt(src_fmt or infer_format(src))
-    dst_fmt = _check_fmt(dst_fmt or infer_format(dst, for_writing=True))
+    dst_fmt = _check_fmt(dst_fmt or infer_format(dst, for_writing=True), for_writing=True)
     rig = read_rig(src, src_fmt)
     if names:
         if len(names) != len(rig):
@@ -452,5 +544,5 @@ def rig_projection_difference(a: Rig, b: Rig, points_n3: np.ndarray) -> float:
     return worst
 
 
-__all__ = ["FORMATS", "convert", "read_rig", "write_rig", "infer_format", "rig_projection_difference",
+__all__ = ["FORMATS", "READ_FORMATS", "convert", "read_rig", "write_rig", "infer_format", "rig_projection_difference",
            "rotvec"]

@@ -12,10 +12,11 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.core import log
 
 calib_app = typer.Typer(help="Calibration files: convert between mamma-kit, MAMMA YAML, EasyMocap, anipose, "
-                             "Caliscope and OpenCV JSON.", no_args_is_help=True)
+                             "Caliscope and OpenCV JSON; read Qualisys .qca.txt.", no_args_is_help=True)
 app.add_typer(calib_app, name="calib")
 
-FMT_HELP = "mamma-kit | mamma-yaml | easymocap | anipose | caliscope | opencv-json (inferred from the name if omitted)"
+FMT_HELP = ("mamma-kit | mamma-yaml | easymocap | anipose | caliscope | opencv-json | qualisys (read only; "
+            ".qca.txt) (inferred from the name if omitted)")
 
 
 @calib_app.command("convert")

@@ -68,6 +68,9 @@ def init_cmd(
     people: Optional[int] = typer.Option(None, "--people", min=1, help="How many people the videos show (helps "
                                                                        "the builtin tracker separate people who touch)."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing capture.toml."),
+    calibration: Optional[Path] = typer.Option(None, "--calibration", help="An existing calibration (any format "
+                                               "`calib convert` reads, e.g. a Qualisys .qca.txt), written as "
+                                               "WORKSPACE/calibration.toml instead of board videos."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
@@ -80,6 +83,6 @@ def init_cmd(
     g = video_groups(list(ctx.args))
     res = init_workspace(workspace, g["videos"], g["board_videos"] or None, board,
                          [n.strip() for n in names.split(",")] if names else None, copy=copy, backend=backend,
-                         force=force, people=people)
+                         force=force, people=people, calibration=calibration)
     if json_out:
         emit_json(res)
