@@ -39,6 +39,7 @@ from mamma_kit.core.workspace import STAGES, Workspace
 KNOWN = {
     "calibrate": {"model", "detect_fps", "max_views", "floor", "board"},
     "track": {"backend", "sam2_checkpoint", "sam2_config", "chunk", "device", "prompts", "pictures", "people"},
+    "keypoints": {"blank", "threads", "pictures"},
     "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads"},
     "match": {"lam", "max_distance", "min_affinity", "plots"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model"},
@@ -90,6 +91,9 @@ def _key_facts(stage: str, res: dict) -> str:
                              for n, c in cams.items())
         if stage == "track":
             return ", ".join(f"{c['camera']} {c.get('tracks', '?')} tracks" for c in res.get("cameras", []))
+        if stage == "keypoints":
+            return ", ".join(f"{c['camera']} {c.get('with_pose', '?')}/{c.get('instances', '?')} person-frames"
+                             for c in res.get("cameras", []))
         if stage == "landmarks":
             return f"{res.get('source')} {res.get('arch', '')}".strip()
         if stage == "match":
@@ -137,6 +141,11 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
                         chunk=int(opts.get("chunk", 64)), device=opts.get("device", "cpu"),
                         prompts=ws.resolve(opts["prompts"], "prompts file") if opts.get("prompts") else None,
                         pictures=bool(opts.get("pictures", True)), force=force, people=opts.get("people"))
+    elif stage == "keypoints":
+        from mamma_kit.keypoints.stage import run_keypoints
+
+        res = run_keypoints(ws, blank=bool(opts.get("blank", True)), pictures=bool(opts.get("pictures", True)),
+                            force=force, threads=opts.get("threads"))
     elif stage == "landmarks":
         from mamma_kit.landmarks.stage import run_landmarks
 

@@ -43,7 +43,7 @@ def _register() -> None:
     from mamma_kit.cli import sync  # noqa: F401
     from mamma_kit.cli import body  # noqa: F401
     from mamma_kit.cli import landmarks, train  # noqa: F401
-    from mamma_kit.cli import match, track  # noqa: F401
+    from mamma_kit.cli import keypoints, match, track  # noqa: F401
     from mamma_kit.cli import board, calibrate  # noqa: F401
     from mamma_kit.cli import fit, report  # noqa: F401
     from mamma_kit.cli import pipeline  # noqa: F401

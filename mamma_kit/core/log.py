@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import Iterable, Iterator, TypeVar
 
 from rich.console import Console
@@ -39,6 +40,14 @@ def progress_bar() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                     TimeElapsedColumn(), TimeRemainingColumn(), console=console,
                     disable=_quiet or not console.is_terminal, transient=True)
+
+
+@contextmanager
+def progress(description: str, total: int | None) -> Iterator:
+    """``with progress("keypoints cam1", n) as advance: ... advance(k)`` draws one bar."""
+    with progress_bar() as p:
+        task = p.add_task(description, total=total)
+        yield lambda n=1: p.advance(task, n)
 
 
 def track(items: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:

@@ -17,6 +17,11 @@ landmarks/<cam>.npz  (L = 512)
     xy (T, K, L, 2) px; sigma (T, K, L, 2) px per axis; visibility, contact,
     floor_contact (T, K, L) probabilities in [0, 1]; landmark_set (str); source (str).
 
+keypoints/<cam>.npz  (P = 33 BlazePose points, in the model's order: keypoints.blazepose.POINT_NAMES)
+    image_size, frame_times, track_ids as above; valid (T, K) bool; xy (T, K, P, 2) px;
+    z (T, K, P) depth relative to the hips (px-scaled, smaller = nearer); visibility, presence
+    (T, K, P) in [0, 1]; score (T, K) the model's pose flag (0 where invalid); model (str).
+
 Every file also holds ``producer`` (JSON string: tool, version, command, input hashes).
 """
 
@@ -30,6 +35,28 @@ import numpy as np
 
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_npz, write_npz
+
+
+def nearest_frames(times_a: np.ndarray, times_b: np.ndarray, tol: float | None = None) -> np.ndarray:
+    """For each time in a, the index of the nearest time in b (-1 if farther than tol; default half a frame)."""
+    a, b = np.asarray(times_a, np.float64), np.asarray(times_b, np.float64)
+    if len(b) == 0:
+        return np.full(len(a), -1, np.int64)
+    if tol is None:
+        tol = 0.5 * float(np.median(np.diff(b))) if len(b) > 1 else 1e-3
+    i = np.clip(np.searchsorted(b, a), 1, max(len(b) - 1, 1)) if len(b) > 1 else np.zeros(len(a), np.int64)
+    if len(b) > 1:
+        i = np.where(np.abs(b[i - 1] - a) <= np.abs(b[i] - a), i - 1, i)
+    return np.where(np.abs(b[i] - a) <= tol + 1e-9, i, -1).astype(np.int64)
+
+
+def track_colour(track_id: int) -> tuple[int, int, int]:
+    """A distinct, stable RGB colour per id (golden-ratio hue steps), for every stage's pictures."""
+    import cv2
+
+    hue = int((track_id * 0.61803398875 % 1.0) * 179)
+    hsv = np.uint8([[[hue, 200, 255]]])
+    return tuple(int(v) for v in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0])
 
 
 # ---- run-length encoding ---------------------------------------------------------------
@@ -189,6 +216,49 @@ class LandmarkTracks:
                    d["frame_times"], d["track_ids"], d["valid"].astype(bool), d["xy"], d["sigma"],
                    d["visibility"], d["contact"], d["floor_contact"], str(d.get("landmark_set", "")),
                    str(d.get("source", "")), json.loads(str(d.get("producer", "{}"))))
+
+
+# ---- keypoints --------------------------------------------------------------------------
+@dataclass
+class KeypointTracks:
+    camera: str
+    image_size: tuple[int, int]
+    frame_times: np.ndarray  # (T,)
+    track_ids: np.ndarray  # (K,)
+    valid: np.ndarray  # (T, K) bool
+    xy: np.ndarray  # (T, K, P, 2) px
+    z: np.ndarray  # (T, K, P)
+    visibility: np.ndarray  # (T, K, P)
+    presence: np.ndarray  # (T, K, P)
+    score: np.ndarray  # (T, K)
+    model: str = ""
+    producer: dict = field(default_factory=dict)
+
+    @classmethod
+    def empty(cls, camera: str, image_size, frame_times, track_ids, n_points: int = 33,
+              model: str = "") -> "KeypointTracks":
+        T, K, P = len(frame_times), len(track_ids), n_points
+        return cls(camera, (int(image_size[0]), int(image_size[1])), np.asarray(frame_times, np.float64),
+                   np.asarray(track_ids, np.int64), np.zeros((T, K), bool), np.full((T, K, P, 2), np.nan, np.float32),
+                   np.full((T, K, P), np.nan, np.float32), np.zeros((T, K, P), np.float32),
+                   np.zeros((T, K, P), np.float32), np.zeros((T, K), np.float32), model)
+
+    def save(self, path: str | Path) -> Path:
+        return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
+                         frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,
+                         xy=self.xy.astype(np.float32), z=self.z.astype(np.float32),
+                         visibility=self.visibility.astype(np.float32), presence=self.presence.astype(np.float32),
+                         score=self.score.astype(np.float32), model=np.array(self.model),
+                         producer=_producer_str(self.producer))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "KeypointTracks":
+        d = read_npz(path, "keypoint file")
+        _require(d, path, ("image_size", "frame_times", "track_ids", "valid", "xy", "z", "visibility", "presence",
+                           "score"))
+        return cls(str(d.get("camera", Path(path).stem)), tuple(int(v) for v in d["image_size"]),
+                   d["frame_times"], d["track_ids"], d["valid"].astype(bool), d["xy"], d["z"], d["visibility"],
+                   d["presence"], d["score"], str(d.get("model", "")), json.loads(str(d.get("producer", "{}"))))
 
 
 def _require(d: dict, path, keys) -> None:

@@ -37,7 +37,7 @@ from typing import Any
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_toml, write_toml
 
-STAGES = ("calibrate", "sync", "track", "landmarks", "match", "fit", "report")
+STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fit", "report")
 
 
 @dataclass
@@ -127,6 +127,13 @@ class Workspace:
 
     def mask_file(self, cam: str) -> Path:
         return self.masks_dir / f"{cam}.npz"
+
+    @property
+    def keypoints_dir(self) -> Path:
+        return self.root / "keypoints"
+
+    def keypoints_file(self, cam: str) -> Path:
+        return self.keypoints_dir / f"{cam}.npz"
 
     def landmarks_file(self, cam: str) -> Path:
         return self.landmarks_dir / f"{cam}.npz"

@@ -21,7 +21,7 @@ import numpy as np
 
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.manifest import producer
-from mamma_kit.core.tracks import LandmarkTracks, MaskTracks
+from mamma_kit.core.tracks import LandmarkTracks, MaskTracks, nearest_frames  # noqa: F401 - re-exported
 from mamma_kit.core.workspace import Workspace
 
 MIN_SIGMA_PX = 0.5  # sigma floor when noise is 0 (the fit divides by sigma)
@@ -43,19 +43,6 @@ def parse_noise(text: str | float) -> tuple[float, bool]:
         raise UserError(f"--noise '{text}' is neither pixels nor a percentage", "use e.g. --noise 2 or --noise 1.2%")
     v = float(m.group(1))
     return (v / 100.0, True) if m.group(2) else (v, False)
-
-
-def nearest_frames(times_a: np.ndarray, times_b: np.ndarray, tol: float | None = None) -> np.ndarray:
-    """For each time in a, the index of the nearest time in b (-1 if farther than tol; default half a frame)."""
-    a, b = np.asarray(times_a, np.float64), np.asarray(times_b, np.float64)
-    if len(b) == 0:
-        return np.full(len(a), -1, np.int64)
-    if tol is None:
-        tol = 0.5 * float(np.median(np.diff(b))) if len(b) > 1 else 1e-3
-    i = np.clip(np.searchsorted(b, a), 1, max(len(b) - 1, 1)) if len(b) > 1 else np.zeros(len(a), np.int64)
-    if len(b) > 1:
-        i = np.where(np.abs(b[i - 1] - a) <= np.abs(b[i] - a), i - 1, i)
-    return np.where(np.abs(b[i] - a) <= tol + 1e-9, i, -1).astype(np.int64)
 
 
 def _decode(mt: MaskTracks, t: int, k: int, stride: int) -> np.ndarray | None:

@@ -181,7 +181,7 @@ def _threaded(gen_fn: Callable[[], Iterator], maxsize: int) -> Iterator:
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
                min_area: int = MIN_MASK_AREA, producer: dict | None = None) -> tuple[LandmarkTracks, dict]:
     """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video."""
-    from mamma_kit.landmarks.gt import nearest_frames
+    from mamma_kit.core.tracks import nearest_frames
     from mamma_kit.video import VideoReader
 
     reader = VideoReader(video_path)

@@ -8,14 +8,7 @@ import cv2
 import numpy as np
 
 from mamma_kit.core.io import atomic_path
-from mamma_kit.core.tracks import MaskTracks
-
-
-def track_colour(track_id: int) -> tuple[int, int, int]:
-    """A distinct, stable RGB colour per id (golden-ratio hue steps)."""
-    hue = int((track_id * 0.61803398875 % 1.0) * 179)
-    hsv = np.uint8([[[hue, 200, 255]]])
-    return tuple(int(v) for v in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0])
+from mamma_kit.core.tracks import MaskTracks, track_colour  # noqa: F401 - re-exported
 
 
 def best_frame(mt: MaskTracks) -> int:

@@ -1,0 +1,37 @@
+"""`mamma-kit keypoints`: BlazePose's 33 points for every tracked person -> keypoints/<cam>.npz."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from mamma_kit.cli.app import app
+from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
+
+
+@app.command("keypoints")
+def keypoints_cmd(
+    workspace: Path = typer.Argument(..., help="Capture workspace with masks/<cam>.npz (run `track` first)."),
+    cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated subset of cameras."),
+    blank: bool = typer.Option(True, "--blank/--no-blank", help="Show the model each person alone (the rest of "
+                                                                "its input blanked by the track's mask)."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="LiteRT threads (default: up to 2)."),
+    pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="Write report/keypoints/<cam>.png."),
+    force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
+    json_out: bool = JsonOpt,
+    quiet: bool = QuietOpt,
+) -> None:
+    """Per camera, 33 BlazePose points (px), visibility, presence and a score for every (frame, track).
+
+    The person detector and keypoint model (BlazePose GHUM full, Apache-2.0) ship with mamma-kit and
+    run on the CPU with LiteRT; nothing is downloaded."""
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.keypoints.stage import run_keypoints
+
+    setup(quiet, json_out)
+    res = run_keypoints(Workspace(workspace), cameras=cameras, blank=blank, pictures=pictures, force=force,
+                        threads=threads)
+    if json_out:
+        emit_json(res)

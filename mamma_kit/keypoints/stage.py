@@ -1,0 +1,161 @@
+"""The keypoints stage: masks/<cam>.npz + videos -> keypoints/<cam>.npz (+ report/keypoints/<cam>.png).
+
+For every (frame, track) of the mask tracks, BlazePose's 33 points of that person. A track's region
+of interest follows the person from frame to frame (the landmark model's own next-frame ROI) and is
+found again by the detector, on the track's masked box, where the track starts or the followed ROI
+leaves the track's box. The other people are blanked out of the model's input by the track's mask,
+so the points stay with the track where people overlap. Each camera is a unit with its own manifest
+(.cache/keypoints-<cam>.json).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mamma_kit.core import log
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.manifest import StageManifest, producer
+from mamma_kit.core.tracks import KeypointTracks, MaskTracks, nearest_frames
+
+MODEL_NAME = "blazepose-ghum-full"
+# a followed ROI is kept while its centre stays inside the track's box grown by this share and its
+# side stays within these multiples of the box's longer side (else the detector looks again)
+FOLLOW_BOX_GROW = 0.15
+FOLLOW_SIDE_RANGE = (0.6, 3.0)
+
+
+def _follow_ok(roi_4: np.ndarray, box_4: np.ndarray) -> bool:
+    w, h = box_4[2] - box_4[0], box_4[3] - box_4[1]
+    g = FOLLOW_BOX_GROW * max(w, h)
+    inside = box_4[0] - g <= roi_4[0] <= box_4[2] + g and box_4[1] - g <= roi_4[1] <= box_4[3] + g
+    lo, hi = FOLLOW_SIDE_RANGE
+    return bool(inside and lo * max(w, h) <= roi_4[2] <= hi * max(w, h))
+
+
+def _box_roi(box_4: np.ndarray) -> np.ndarray:
+    """A fallback ROI: the box's centre, upright, covering its longer side."""
+    w, h = box_4[2] - box_4[0], box_4[3] - box_4[1]
+    return np.array([(box_4[0] + box_4[2]) / 2, (box_4[1] + box_4[3]) / 2, 1.15 * max(w, h), 0.0])
+
+
+def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
+                         progress_label: str | None = None) -> tuple[KeypointTracks, dict]:
+    """33 points for every (frame, track) of one camera's mask tracks, streaming the video once."""
+    from mamma_kit.video import VideoReader
+
+    reader = VideoReader(video_path)
+    if tuple(reader.size) != tuple(masks.image_size):
+        raise UserError(f"masks/{masks.camera}.npz is {masks.image_size[0]}x{masks.image_size[1]} but "
+                        f"{reader.path.name} is {reader.size[0]}x{reader.size[1]}",
+                        "run `mamma-kit track` again for this camera")
+    out = KeypointTracks.empty(masks.camera, masks.image_size, masks.frame_times, masks.track_ids, model=MODEL_NAME)
+    present = masks.present
+    vid_idx = nearest_frames(masks.frame_times, reader.timestamps)
+    by_video = {int(v): int(t) for t, v in enumerate(vid_idx) if v >= 0 and present[t].any()}
+    follow: dict[int, np.ndarray] = {}  # column -> ROI from the previous frame
+    last_t: dict[int, int] = {}
+    n_det = n_follow = 0
+    t0 = time.perf_counter()
+    total = int(present[[t for t in by_video.values()]].sum()) if by_video else 0
+    with log.progress(progress_label or f"keypoints {masks.camera}", total) as advance:
+        for _i, _t, img in reader.read_indices(sorted(by_video)):
+            t = by_video[_i]
+            cols = np.flatnonzero(present[t])
+            boxes = masks.boxes[t, cols].astype(np.float64)
+            mlist = [masks.mask(t, k) for k in cols]
+            rois = np.zeros((len(cols), 4))
+            need = []
+            for j, k in enumerate(cols):
+                roi = follow.get(int(k)) if last_t.get(int(k)) == t - 1 else None
+                if roi is not None and _follow_ok(roi, boxes[j]):
+                    rois[j] = roi
+                    n_follow += 1
+                else:
+                    need.append(j)
+            if need:
+                dets = est.detect_regions(img, boxes[need], [mlist[j] for j in need] if blank else None)
+                for j, d in zip(need, dets):
+                    n_det += 1
+                    if len(d):
+                        # the detection nearest the box's centre (the track's person, not a neighbour)
+                        c = (boxes[j, :2] + boxes[j, 2:]) / 2
+                        best = int(np.argmin(np.linalg.norm(d.points[:, 0] - c, axis=1) - 1e3 * d.scores))
+                        rois[j] = est.rois_from_detections(d)[best]
+                    else:
+                        rois[j] = _box_roi(boxes[j])
+            res = est.landmarks(img, rois, masks=mlist if blank else None)
+            ok = res.score >= 0.5
+            for j, k in enumerate(cols):
+                follow[int(k)] = res.next_rois[j]
+                last_t[int(k)] = t
+            ks = cols[ok]
+            out.valid[t, ks] = True
+            out.xy[t, ks] = res.xy[ok]
+            out.z[t, ks] = res.z[ok]
+            out.visibility[t, ks] = res.visibility[ok]
+            out.presence[t, ks] = res.presence[ok]
+            out.score[t, cols] = res.score
+            advance(len(cols))
+    secs = time.perf_counter() - t0
+    n = int(present.sum())
+    summary = {"camera": masks.camera, "instances": n, "with_pose": int(out.valid.sum()),
+               "detector_calls": n_det, "followed": n_follow, "seconds": round(secs, 3),
+               "person_frames_per_s": round(n / secs, 1) if secs > 0 else None}
+    return out, summary
+
+
+def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = True, pictures: bool = True,
+                  force: bool = False, threads: int | None = None) -> dict:
+    """BlazePose keypoints for every tracked person of every camera (see the module docstring)."""
+    from mamma_kit.keypoints.runtime import DETECTOR, LANDMARKER, model_path
+    from mamma_kit.masks.stage import select_cameras
+
+    cap = ws.load_capture()
+    cams = select_cameras(cap.camera_names, cameras)
+    missing = [c for c in cams if not ws.mask_file(c).is_file()]
+    if missing:
+        raise UserError(f"no person masks for {', '.join(missing)} (masks/<cam>.npz)",
+                        "run `mamma-kit track WORKSPACE` first")
+    models = [model_path(DETECTOR), model_path(LANDMARKER)]
+    settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures}
+    t0 = time.perf_counter()
+    per_cam, ran, est = [], [], None
+    for cam in cams:
+        manifest = StageManifest(ws.cache_dir, f"keypoints-{cam}", ws.root)
+        inputs, out = [ws.mask_file(cam), cap.cameras[cam].video, *models], ws.keypoints_file(cam)
+        state = manifest.check(inputs, {**settings, "camera": cam})
+        if state.fresh and not force and out.is_file():
+            per_cam.append({"camera": cam, "skipped": True, **manifest.load().get("summary", {})})
+            continue
+        if est is None:
+            from mamma_kit.keypoints.estimator import PoseEstimator
+
+            est = PoseEstimator(threads)
+        tc = time.perf_counter()
+        hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
+        masks = MaskTracks.load(ws.mask_file(cam))
+        kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank)
+        kt.producer = producer("keypoints", hashes)
+        kt.save(out)
+        outputs = [out]
+        if summ["instances"] == 0:
+            log.warn(f"{cam}: no tracked person, so no keypoints (an empty keypoints/{cam}.npz)")
+        if pictures:
+            from mamma_kit.keypoints.pictures import write_keypoints_picture
+
+            pic = write_keypoints_picture(kt, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png")
+            summ["picture"] = ws.relative(pic)
+            outputs.append(pic)
+        manifest.record(inputs, {**settings, "camera": cam}, outputs, summ, time.perf_counter() - tc)
+        per_cam.append({"camera": cam, "skipped": False, **summ})
+        ran.append(cam)
+        log.info(f"{cam}: keypoints for {summ['with_pose']} of {summ['instances']} tracked person-frames "
+                 f"({summ['person_frames_per_s']} /s)")
+    secs = time.perf_counter() - t0
+    if not ran:
+        log.info("keypoints: up to date (inputs unchanged); skipped (--force recomputes)")
+    return {"stage": "keypoints", "skipped": not ran, "reason": "inputs unchanged" if not ran else
+            f"ran {', '.join(ran)}", "model": MODEL_NAME, "cameras": per_cam, "seconds": round(secs, 2)}
