@@ -14,14 +14,16 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 @app.command("track")
 def track_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace (capture.toml + videos)."),
-    backend: str = typer.Option("builtin", "--backend", help="builtin (no weights), sam2 (needs --sam2-checkpoint) "
-                                                              "or gt (synthetic workspaces)."),
+    backend: str = typer.Option("builtin", "--backend", help="builtin (background model, no weights), pose "
+                                                              "(BlazePose, shipped: for real footage), sam2 (needs "
+                                                              "--sam2-checkpoint) or gt (synthetic workspaces)."),
     prompts: Optional[Path] = typer.Option(None, "--prompts", help="sam2: TOML with boxes or clicks per person "
                                                                   "(default: builtin detections)."),
     sam2_checkpoint: Optional[Path] = typer.Option(None, "--sam2-checkpoint", help="sam2: checkpoint .pt."),
     sam2_config: Optional[str] = typer.Option(None, "--sam2-config", help="sam2: model config name, e.g. "
                                                                           "configs/sam2.1/sam2.1_hiera_t.yaml."),
-    people: Optional[int] = typer.Option(None, "--people", min=1, help="builtin: how many people the capture shows "
+    people: Optional[int] = typer.Option(None, "--people", min=1, help="builtin, pose: how many people the capture is "
+                                                                     "about; pose drops the other people (bystanders) "
                                                                      "(default: capture.toml [capture] people)."),
     no_plate: bool = typer.Option(False, "--no-plate", help="builtin: background from the capture only, not from "
                                                             "the board videos."),

@@ -62,7 +62,13 @@ class PoseResult:
     score: np.ndarray  # (N,) the pose flag
     next_rois: np.ndarray  # (N, 4) the ROI for the next frame, from the auxiliary points
     rois: np.ndarray  # (N, 4) the ROIs these came from
-    segmentation: list  # N x (prob (h, w) float32, (x0, y0)) or None when not asked
+    segmentation: list  # N x (prob (h, w) float32, (x0, y0)) when asked, else []
+    seg_logits: np.ndarray | None = None  # (N, 256, 256) the model's segmentation logits of each ROI
+    affines: np.ndarray | None = None  # (N, 2, 3) image px -> ROI input px
+
+    def segmentation_of(self, n: int, image_wh: tuple[int, int]) -> tuple[np.ndarray, tuple[int, int]]:
+        """ROI n's segmentation probability on the image: (prob (h, w) over its box, (x0, y0))."""
+        return bp.segmentation_to_image(self.seg_logits[n], self.affines[n], image_wh)
 
 
 class PoseEstimator:
@@ -143,4 +149,4 @@ class PoseEstimator:
         segs = [bp.segmentation_to_image(seg[b, ..., 0], affines_b23[b], image_wh) for b in range(len(crops_b))] \
             if image_wh is not None else []
         return PoseResult(dec["xy"][:, :P], dec["z"][:, :P], dec["visibility"][:, :P], dec["presence"][:, :P],
-                          np.asarray(flag, np.float64).reshape(-1), nxt, rois_b4, segs)
+                          np.asarray(flag, np.float64).reshape(-1), nxt, rois_b4, segs, seg[..., 0], affines_b23)

@@ -16,7 +16,7 @@ import numpy as np
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.tracks import MaskTracks
 
-BACKENDS = ("builtin", "sam2", "gt")
+BACKENDS = ("builtin", "pose", "sam2", "gt")
 
 
 @dataclass
@@ -44,6 +44,10 @@ def get_backend(name: str, **options) -> MaskBackend:
         from mamma_kit.masks.builtin import BuiltinBackend
 
         return BuiltinBackend(**{k: v for k, v in options.items() if k in ("settings",)})
+    if name == "pose":
+        from mamma_kit.masks.pose import PoseBackend
+
+        return PoseBackend(**{k: v for k, v in options.items() if k in ("people",)})
     if name == "gt":
         from mamma_kit.masks.gt import GtBackend
 

@@ -52,11 +52,13 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
         from mamma_kit.masks.builtin import BuiltinSettings
 
         options = {"settings": BuiltinSettings(people=int(people) if people else None, use_board_plate=plate)}
+    if backend == "pose":
+        options = {"people": int(people) if people else None}
     if backend == "sam2":
         options = {"checkpoint": sam2_checkpoint, "config": sam2_config, "prompts": prompts, "chunk": chunk,
                    "device": device}
     settings = {"backend": backend, "chunk": chunk if backend == "sam2" else None, "sam2_config": sam2_config,
-                "pictures": pictures, "people": people if backend == "builtin" else None,
+                "pictures": pictures, "people": people if backend in ("builtin", "pose") else None,
                 "plate": plate if backend == "builtin" else None}
     t0 = time.perf_counter()
     per_cam, todo = {}, []
@@ -85,6 +87,10 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
 
 def _inputs(ws, entry, backend: str, prompts, sam2_checkpoint) -> list[Path]:
     inputs = [entry.video] + ([entry.board_video] if backend == "builtin" and entry.board_video else [])
+    if backend == "pose":
+        from mamma_kit.keypoints.runtime import DETECTOR, LANDMARKER, model_path
+
+        inputs += [model_path(DETECTOR), model_path(LANDMARKER)]
     if backend == "gt":
         inputs.append(ws.gt_dir / "masks" / f"{entry.name}.npz")
     return inputs + [Path(p) for p in (prompts, sam2_checkpoint) if p is not None]

@@ -1,0 +1,349 @@
+"""The `pose` mask backend: people found and segmented by BlazePose, followed over time.
+
+Per frame: the detector looks at the whole frame (and, every few frames, at overlapping square
+tiles, for people too small in the whole frame); each person already followed keeps the ROI the
+landmark model predicted for this frame; detections that no followed person explains start new
+tracks. The landmark model then gives every followed person 33 points and a segmentation of its
+ROI. A pixel the segmentations of two people both claim goes to the person whose skeleton is
+nearer, and no person's mask reaches farther from its skeleton than a share of its size (the ROI
+also holds other people and bystanders). After the video, tracks that do not overlap in time and
+meet where one ends and the next starts are joined, and ``people`` keeps the N tracks the capture
+is about: large, long-lived and moving, not a bystander who stands still at the edge.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mamma_kit.core import log
+from mamma_kit.core.tracks import MaskTracks
+from mamma_kit.masks.base import CameraInput, MaskTrackBuilder, track_summary
+
+# two detections (whole frame and a tile) whose ROI centres lie within this share of the side are
+# one person: only one of them goes on to the landmark model
+MATCH_SHARE = 0.2
+# a skeleton is the same person as a track's last one when its points lie within this share of the
+# track's ROI side (60 fps or 30 fps motion between two frames stays well inside)
+TRACK_SHARE = 0.12
+# a followed person unseen this many frames is given up
+MAX_MISSED = 8
+# tiles are looked at every this many frames (new people enter rarely; the detector costs 5 ms a call)
+TILE_EVERY = 5
+# a person's mask reaches at most this share of its ROI side from its skeleton
+REACH_SHARE = 0.16
+# two skeletons whose limb joints lie within this share of the ROI side (about 1.25 body heights)
+# are one person
+SAME_SHARE = 0.06
+# the limb joints (shoulders, elbows, wrists, hips, knees, ankles) that tell people apart
+BODY = np.r_[11:17, 23:29]
+# fragments are joined across a gap of at most this many frames where the boxes meet
+JOIN_GAP = 15
+JOIN_SHARE = 0.5
+SEG_THRESHOLD = 0.5
+
+
+@dataclass
+class _Track:
+    tid: int
+    roi: np.ndarray  # (4,) cx, cy, side, rotation for the coming frame
+    born: int
+    last: int
+    xy: np.ndarray | None = None  # (33, 2) its last points
+    vis: np.ndarray | None = None  # (33,)
+    missed: int = 0
+    boxes: dict = field(default_factory=dict)  # frame -> (4,) box
+
+
+def tiles(W: int, H: int) -> np.ndarray:
+    """(N, 4) overlapping square tiles (x1 y1 x2 y2) along the frame's longer side (none if square)."""
+    side = min(W, H)
+    n = int(np.ceil(max(W, H) / side * 1.5)) if max(W, H) > 1.2 * side else 0
+    if n < 2:
+        return np.zeros((0, 4))
+    starts = np.linspace(0, max(W, H) - side, n)
+    return np.array([[s, 0, s + side, side] if W >= H else [0, s, side, s + side] for s in starts], float)
+
+
+def skeleton_distance(xy_p2: np.ndarray, weight_p: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """Distance (px) of every pixel of ``box`` to the person's bones (points weighted >= 0.3)."""
+    from mamma_kit.keypoints.blazepose import SKELETON
+
+    x0, y0, x1, y1 = box
+    canvas = np.full((y1 - y0, x1 - x0), 255, np.uint8)
+    off = np.array([x0, y0])
+    for a, b in SKELETON:
+        if weight_p[a] >= 0.3 and weight_p[b] >= 0.3:
+            cv2.line(canvas, tuple(int(v) for v in xy_p2[a] - off), tuple(int(v) for v in xy_p2[b] - off), 0, 3)
+    if canvas.min() == 255:
+        return np.full(canvas.shape, np.inf, np.float32)
+    return cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
+
+
+class PoseBackend:
+    name = "pose"
+
+    def __init__(self, people: int | None = None, threads: int | None = None):
+        self.people = people
+        self.threads = threads
+        self._est = None
+
+    @property
+    def est(self):
+        if self._est is None:
+            from mamma_kit.keypoints.estimator import PoseEstimator
+
+            self._est = PoseEstimator(self.threads)
+        return self._est
+
+    # ---- one frame ----------------------------------------------------------------------------------
+    def _detections(self, img: np.ndarray, t: int) -> np.ndarray:
+        """(N, 4) ROIs of the people the detector finds in this frame."""
+        H, W = img.shape[:2]
+        est = self.est
+        dets = [est.detect(img)]
+        if t % TILE_EVERY == 0:
+            tl = tiles(W, H)
+            if len(tl):
+                # tiles are given as boxes; the region grows by REGION_MARGIN, so shrink them first
+                from mamma_kit.keypoints.estimator import REGION_MARGIN
+
+                c = (tl[:, :2] + tl[:, 2:]) / 2
+                half = (tl[:, 2:] - tl[:, :2]) / (2 * REGION_MARGIN)
+                dets += est.detect_regions(img, np.concatenate([c - half, c + half], 1))
+        rois = [est.rois_from_detections(d) for d in dets if len(d)]
+        if not rois:
+            return np.zeros((0, 4))
+        rois = np.concatenate(rois)
+        # the same person found in the frame and in a tile: keep one (the first, the whole frame's)
+        keep = []
+        for i, r in enumerate(rois):
+            if all(np.linalg.norm(r[:2] - rois[j, :2]) > MATCH_SHARE * max(r[2], rois[j, 2]) for j in keep):
+                keep.append(i)
+        return rois[keep]
+
+    @staticmethod
+    def _distinct(res, order: np.ndarray) -> list[int]:
+        """Candidates (in ``order`` of preference) that are not the same skeleton as a preferred one
+        (limb joints only: two people's heads can touch)."""
+        keep: list[int] = []
+        for n in order:
+            same = any(np.median(np.linalg.norm(res.xy[n, BODY] - res.xy[m, BODY], axis=1))
+                       < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2]) for m in keep)
+            if not same:
+                keep.append(int(n))
+        return keep
+
+    @staticmethod
+    def _skeleton_cost(tracks: list[_Track], res, cands: list[int]) -> np.ndarray:
+        """(tracks, candidates) median distance of shared visible points / the track's ROI side."""
+        cost = np.full((len(tracks), len(cands)), np.inf)
+        for i, tr in enumerate(tracks):
+            for j, n in enumerate(cands):
+                d = np.linalg.norm(tr.xy[BODY] - res.xy[n, BODY], axis=1)
+                cost[i, j] = np.median(d) / max(tr.roi[2], 1.0)
+        return cost
+
+    def _masks(self, res, chosen: np.ndarray, W: int, H: int) -> list[np.ndarray | None]:
+        """Per chosen candidate, its bool mask (H, W): segmentation near its own skeleton, shared
+        pixels to the nearest skeleton."""
+        prob_full, dist_full = [], []
+        for n in chosen:
+            prob, (x0, y0) = res.segmentation_of(int(n), (W, H))
+            h, w = prob.shape
+            if h == 0 or w == 0:
+                prob_full.append(None)
+                dist_full.append(None)
+                continue
+            box = (x0, y0, x0 + w, y0 + h)
+            dist = skeleton_distance(res.xy[n], res.presence[n], box)
+            own = (prob > SEG_THRESHOLD) & (dist <= REACH_SHARE * res.rois[n, 2])
+            prob_full.append((own, box))
+            dist_full.append(dist)
+        # nearest skeleton wins shared pixels
+        masks: list[np.ndarray | None] = []
+        for i, item in enumerate(prob_full):
+            if item is None:
+                masks.append(None)
+                continue
+            own, (x0, y0, x1, y1) = item
+            m = np.zeros((H, W), bool)
+            m[y0:y1, x0:x1] = own
+            for j, other in enumerate(prob_full):
+                if j == i or other is None:
+                    continue
+                o_own, (a0, b0, a1, b1) = other
+                ix0, iy0, ix1, iy1 = max(x0, a0), max(y0, b0), min(x1, a1), min(y1, b1)
+                if ix1 <= ix0 or iy1 <= iy0:
+                    continue
+                mine = dist_full[i][iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+                theirs = dist_full[j][iy0 - b0:iy1 - b0, ix0 - a0:ix1 - a0]
+                both = m[iy0:iy1, ix0:ix1] & o_own[iy0 - b0:iy1 - b0, ix0 - a0:ix1 - a0]
+                lose = both & ((theirs < mine) | ((theirs == mine) & (j < i)))
+                m[iy0:iy1, ix0:ix1] &= ~lose
+            masks.append(m)
+        return masks
+
+    @staticmethod
+    def _keep_masks(tracks: list[_Track], prev: dict[int, np.ndarray], W: int, H: int) -> list | None:
+        """Per track, the pixels its landmark model may see: all but the other people's masks of the
+        previous frame (outside its own), so a followed ROI does not slide onto a neighbour."""
+        if not prev or len(tracks) < 2:
+            return None
+        out = []
+        for tr in tracks:
+            others = [m for tid, m in prev.items() if tid != tr.tid]
+            if not others:
+                out.append(None)
+                continue
+            blank = np.logical_or.reduce(others)
+            if tr.tid in prev:
+                blank &= ~prev[tr.tid]
+            out.append(~blank)
+        return out
+
+    # ---- the video ------------------------------------------------------------------------------------
+    def track_camera(self, cam: CameraInput) -> tuple[MaskTracks, dict]:
+        from mamma_kit.video.reader import VideoReader
+
+        rd = VideoReader(cam.video)
+        times = rd.timestamps
+        W, H = rd.size
+        est = self.est
+        builder = MaskTrackBuilder(cam.name, (W, H), times)
+        tracks: list[_Track] = []
+        finished: list[_Track] = []
+        next_id = 0
+        prev: dict[int, np.ndarray] = {}  # track id -> its mask in the previous frame
+        for t, img in log.track(rd.frames(), f"track {cam.name} (pose)", total=len(times)):
+            ti = int(np.argmin(np.abs(times - t)))
+            det = self._detections(img, ti)
+            # candidates: every track's followed ROI (its last good one while missed) and every detection
+            rois = np.concatenate([np.array([tr.roi for tr in tracks]).reshape(-1, 4), det])
+            source = np.r_[np.arange(len(tracks)), np.full(len(det), -1)]
+            keep = self._keep_masks(tracks, prev, W, H)
+            keep = (keep + [None] * len(det)) if keep is not None else None
+            res = est.landmarks(img, rois, masks=keep)
+            good = np.flatnonzero(res.score >= 0.5)
+            # the same skeleton found twice: keep the best-scoring candidate
+            cands = self._distinct(res, good[np.argsort(-res.score[good])])
+            cost = self._skeleton_cost(tracks, res, cands)
+            gated = np.where(cost < TRACK_SHARE, cost, 1e3)
+            r, c = linear_sum_assignment(gated) if gated.size else (np.zeros(0, int), np.zeros(0, int))
+            got = {int(i): cands[int(j)] for i, j in zip(r, c) if gated[i, j] < 1e3}
+            taken = set(got.values())
+            # a skeleton no track explains starts one if a detection found it (not a drifted ROI)
+            for n in cands:
+                if n not in taken and source[n] < 0:
+                    near = cost[:, cands.index(n)].min() if cost.shape[0] else np.inf
+                    if near >= TRACK_SHARE:
+                        tracks.append(_Track(next_id, res.rois[n], ti, ti))
+                        got[len(tracks) - 1] = n
+                        next_id += 1
+            order = sorted(got)
+            masks = self._masks(res, np.array([got[i] for i in order], int), W, H)
+            alive = []
+            for i, tr in enumerate(tracks):
+                if i in got:
+                    n = got[i]
+                    m = masks[order.index(i)]
+                    if m is not None and m.any():
+                        builder.add(ti, tr.tid, m, float(res.score[n]))
+                        prev[tr.tid] = m
+                        ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
+                        tr.boxes[ti] = np.array([xs[0], ys[0], xs[-1] + 1, ys[-1] + 1], float)
+                    tr.roi, tr.last, tr.missed = res.next_rois[n], ti, 0
+                    tr.xy, tr.vis = res.xy[n], res.visibility[n]
+                    alive.append(tr)
+                else:  # keeps its last good ROI and points
+                    prev.pop(tr.tid, None)
+                    tr.missed += 1
+                    (alive if tr.missed < MAX_MISSED else finished).append(tr)
+            tracks = alive
+        finished += tracks
+        mt = builder.build()
+        summ = track_summary(mt)
+        mt, chosen = select_people(mt, self.people)
+        summ.update({"detected_tracks": summ["tracks"], **track_summary(mt), "kept": chosen})
+        return mt, summ
+
+
+# ---- after the video: join fragments, keep the capture's people --------------------------------------
+def _centre_height(box_4: np.ndarray) -> tuple[np.ndarray, float]:
+    return (box_4[:2] + box_4[2:]) / 2, float(box_4[3] - box_4[1])
+
+
+def join_fragments(mt: MaskTracks) -> list[list[int]]:
+    """Groups of columns that are one person seen in pieces (no overlap in time, meeting boxes)."""
+    pres = mt.present
+    spans = [(int(np.flatnonzero(pres[:, k])[0]), int(np.flatnonzero(pres[:, k])[-1])) if pres[:, k].any()
+             else (0, -1) for k in range(pres.shape[1])]
+    groups = [[k] for k in range(pres.shape[1]) if spans[k][1] >= 0]
+    changed = True
+    while changed:
+        changed = False
+        best = None
+        for a, ga in enumerate(groups):
+            end = max(spans[k][1] for k in ga)
+            ka = max(ga, key=lambda k: spans[k][1])
+            for b, gb in enumerate(groups):
+                if a == b:
+                    continue
+                start = min(spans[k][0] for k in gb)
+                kb = min(gb, key=lambda k: spans[k][0])
+                gap = start - end
+                if not 0 < gap <= JOIN_GAP:
+                    continue
+                if (pres[:, ga].any(1) & pres[:, gb].any(1)).any():
+                    continue
+                ca, ha = _centre_height(mt.boxes[end, ka])
+                cb, hb = _centre_height(mt.boxes[start, kb])
+                d = np.linalg.norm(ca - cb) / max(ha, hb, 1.0)
+                if d < JOIN_SHARE and (best is None or d < best[0]):
+                    best = (d, a, b)
+        if best is not None:
+            _, a, b = best
+            groups[a] = groups[a] + groups[b]
+            del groups[b]
+            changed = True
+    return groups
+
+
+def importance(mt: MaskTracks, cols: list[int]) -> float:
+    """How much a (joined) track is one of the capture's people: its summed height over the frames
+    (large and long-lived), times how much it moves and how far from the image's edge it stays."""
+    pres = mt.present[:, cols].any(1)
+    boxes = np.where(mt.present[:, cols, None], mt.boxes[:, cols], np.nan)
+    box = np.nanmean(boxes[pres], axis=1)
+    if not len(box):
+        return 0.0
+    W, H = mt.image_size
+    h = box[:, 3] - box[:, 1]
+    c = (box[:, :2] + box[:, 2:]) / 2
+    move = float(np.nanmedian(np.linalg.norm(np.diff(c, axis=0), axis=1) / np.maximum(h[1:], 1))) if len(c) > 1 else 0
+    edge = np.minimum.reduce([c[:, 0] / W, 1 - c[:, 0] / W, c[:, 1] / H, 1 - c[:, 1] / H])
+    return float(np.nansum(h)) * (1.0 + 20.0 * min(move, 0.05)) * float(np.clip(np.nanmedian(edge) * 4, 0.25, 1.0))
+
+
+def select_people(mt: MaskTracks, people: int | None) -> tuple[MaskTracks, list[dict]]:
+    """Join fragments; with ``people``, keep that many (joined) tracks by importance. Track ids are
+    renumbered 0..K-1 by first appearance."""
+    groups = join_fragments(mt)
+    scored = sorted(((importance(mt, g), g) for g in groups), key=lambda x: -x[0])
+    if people:
+        scored = scored[:people]
+    T = len(mt.frame_times)
+    W, H = mt.image_size
+    first = sorted(scored, key=lambda x: min(int(np.flatnonzero(mt.present[:, k])[0]) for k in x[1]))
+    builder = MaskTrackBuilder(mt.camera, (W, H), mt.frame_times)
+    chosen = []
+    for new_id, (score, g) in enumerate(first):
+        for t in range(T):
+            for k in g:
+                if mt.present[t, k]:
+                    builder.add(t, new_id, mt.mask(t, k), float(mt.scores[t, k]))
+        chosen.append({"track": new_id, "from": [int(mt.track_ids[k]) for k in g], "importance": round(score, 1)})
+    return builder.build(mt.producer), chosen
