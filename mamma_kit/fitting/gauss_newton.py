@@ -69,12 +69,21 @@ class GNConfig:
     accel_sigma: float = 30.0  # m/s^2
     extra: object | None = None  # e.g. contact.ContactTerms: refresh(f, betas, transl), evaluate(f, betas, transl, jac)
     max_step: tuple[float, float] | None = None  # per block: largest joint rotation (rad), translation (m)
+    # robust scale at the first iteration as a fraction of the person's height in each view
+    # (px), where that is wider than gamma_start sigmas (0: sigmas only). Tied to sigma alone,
+    # the start shrinks with the landmarks' sigma: exact landmarks (sigma 0.5 px) made every
+    # landmark of a hand 20 px off an outlier that pulls nothing (issue 20).
+    wide_frac: float = 0.0
+
+    def anneal(self, k: int) -> float:
+        """Annealing fraction of iteration k: 0 at the start, 1 (the final scale) from 60 % of
+        the iterations on."""
+        if self.iterations <= 1:
+            return 1.0
+        return min(1.0, k / max(1, (self.iterations - 1) * 0.6))
 
     def gamma(self, k: int) -> float:
-        if self.iterations <= 1:
-            return self.gamma_end
-        a = min(1.0, k / max(1, (self.iterations - 1) * 0.6))
-        return float(self.gamma_start * (self.gamma_end / self.gamma_start) ** a)
+        return float(self.gamma_start * (self.gamma_end / self.gamma_start) ** self.anneal(k))
 
 
 @dataclass
@@ -84,8 +93,19 @@ class GNReport:
     iterations: int = 0
 
 
-def robust(s2: torch.Tensor, gamma: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Geman-McClure rho(s2) and its derivative d rho / d s2 (the IRLS weight)."""
+def box_heights(xy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Height (px) of the box around each person's observed landmarks: xy (C, P, T, L, 2),
+    w (C, P, T, L) -> (C, P, T) (0 where nothing is observed)."""
+    y = xy[..., 1]
+    seen = w > 0
+    hi = torch.where(seen, y, torch.full_like(y, -torch.inf)).amax(-1)
+    lo = torch.where(seen, y, torch.full_like(y, torch.inf)).amin(-1)
+    return torch.where(seen.any(-1), hi - lo, torch.zeros_like(hi))
+
+
+def robust(s2: torch.Tensor, gamma: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Geman-McClure rho(s2) and its derivative d rho / d s2 (the IRLS weight); gamma a
+    scalar or a tensor broadcasting with s2."""
     g2 = gamma * gamma
     den = s2 + g2
     return g2 * s2 / den, (g2 / den) ** 2
@@ -102,13 +122,29 @@ class GaussNewton:
         self.w = w
         self.xy = obs.xy.to(CDTYPE)
         self.inv_sigma = (1.0 / obs.sigma).to(CDTYPE)
+        self.gamma0 = self._gamma_start(cfg, obs)
         ps = np.full(55, np.inf) if cfg.prior_sigma is None else np.asarray(cfg.prior_sigma, float)
         self.prior_w = torch.as_tensor(1.0 / ps[list(cfg.active)] ** 2, dtype=DTYPE)  # (A,)
         self.times = None if cfg.temporal_times is None else torch.as_tensor(
             np.asarray(cfg.temporal_times, float) - float(cfg.temporal_times[0]), dtype=DTYPE)
 
+    @staticmethod
+    def _gamma_start(cfg: GNConfig, obs: Obs) -> float | torch.Tensor:
+        """Robust scale (in sigmas) at the first iteration: gamma_start, or per landmark
+        (C, P, T, L) wide enough to span ``wide_frac`` of the person's height in that view."""
+        if cfg.wide_frac <= 0:
+            return float(cfg.gamma_start)
+        wide_px = cfg.wide_frac * box_heights(obs.xy, obs.w)  # (C, P, T)
+        sig = obs.sigma.mean(-1).clamp(min=1e-6)  # (C, P, T, L)
+        return torch.clamp(wide_px[..., None] / sig, min=cfg.gamma_start).to(CDTYPE)
+
+    def gamma_at(self, k: int) -> float | torch.Tensor:
+        """Robust scale (sigmas) of iteration k: geometric from the start to gamma_end."""
+        g0 = self.gamma0
+        return g0 * (self.cfg.gamma_end / g0) ** self.cfg.anneal(k)
+
     # ---- energy ----------------------------------------------------------------------------
-    def data_terms(self, v: torch.Tensor, gamma: float, jac: bool):
+    def data_terms(self, v: torch.Tensor, gamma: float | torch.Tensor, jac: bool):
         """v (P, T, L, 3) -> per-block data energy (P, T) float64 [and H (P,T,L,3,3), g (P,T,L,3)]."""
         v = v.to(CDTYPE)
         if jac:
@@ -183,7 +219,7 @@ class GaussNewton:
         gj[:, 2:] -= cp[:, None, None] * a
         return E, (h * inv).expand(P, T), gj * inv
 
-    def energy(self, st: State, gamma: float, fwd_out: list | None = None) -> torch.Tensor:
+    def energy(self, st: State, gamma: float | torch.Tensor, fwd_out: list | None = None) -> torch.Tensor:
         f = self.kin.forward(st.betas, st.rot, st.transl)
         if fwd_out is not None:
             fwd_out.append(f)
@@ -249,7 +285,7 @@ class GaussNewton:
         par = np.asarray(self.kin.parents)[self.act.numpy()]
         temporal = self.times is not None
         for k in range(max(cfg.iterations, cfg.max_iterations or 0)):
-            gamma = cfg.gamma(k)
+            gamma = self.gamma_at(k)
             opt_b = cfg.optimize_betas and k < cfg.betas_iterations
             f = self.kin.forward(st.betas, st.rot, st.transl, jac=True, shape_jac=opt_b)
             Ed, H, g = self.data_terms(f["v"], gamma, jac=True)

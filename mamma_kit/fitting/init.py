@@ -140,3 +140,32 @@ def rigid_from_landmarks(kin, X: np.ndarray, info: np.ndarray, centres: np.ndarr
             cen = centres[p, t] if centre_ok[p, t] else centres[p, src]
             transl[p, t] = cen - (R[p, t] @ (v0.mean(0) - J0[0])) - J0[0]
     return R, transl, ok
+
+
+# ---- hands from their own landmarks --------------------------------------------------------
+HAND_WRISTS = (sk.JOINT_NAMES.index("left_wrist"), sk.JOINT_NAMES.index("right_wrist"))
+MIN_PALM_LANDMARKS = 6  # triangulated palm landmarks a frame needs for a hand orientation (kabsch's own minimum)
+
+
+def palm_landmarks(skin_weights: np.ndarray, wrist: int) -> np.ndarray:
+    """Landmarks that move (mostly) rigidly with a hand: those whose dominant skinning
+    joint is the wrist. skin_weights (L, 55) -> landmark indices (n,)."""
+    return np.flatnonzero(np.asarray(skin_weights).argmax(1) == wrist)
+
+
+def hand_orientations(rest_v: np.ndarray, rest_J: np.ndarray, X: np.ndarray, info: np.ndarray, palm: np.ndarray,
+                      wrist: int) -> tuple[np.ndarray, np.ndarray]:
+    """World rotation of a hand per person and frame from its triangulated palm landmarks.
+
+    rest_v (P, L, 3) rest-pose landmarks and rest_J (P, 55, 3) joints at each person's shape;
+    X (P, T, L, 3) triangulated landmarks with information weights info (P, T, L); palm (n,)
+    the hand's palm landmarks. The palm in the rest pose, about its wrist, is fitted rigidly
+    (weighted Kabsch) to its triangulated points: that gives the hand's world rotation G_wrist
+    (the rest pose has every joint frame aligned with the world) whatever the arm is doing,
+    so a hand that began palm-backwards need not find its way out of that minimum.
+    Returns R (P, T, 3, 3) and ok (P, T) (at least MIN_PALM_LANDMARKS triangulated)."""
+    Y = rest_v[:, None, palm] - rest_J[:, None, wrist:wrist + 1]  # (P, 1, n, 3)
+    w = info[:, :, palm]
+    R, _, ok = kabsch(np.broadcast_to(Y, X[:, :, palm].shape), X[:, :, palm], w)
+    ok = ok & ((w > 0).sum(-1) >= MIN_PALM_LANDMARKS)
+    return R, ok

@@ -7,7 +7,10 @@ Per chunk (all its frames and people at once):
         the rigid torso/head landmarks; several headings where Procrustes had too little)
   S2    pose, shape and translation (LM, robust reprojection / sigma weighted by visibility,
         L2 shape prior, light pose prior on the fingers; the shape is shared by all frames
-        through its Schur complement)
+        through its Schur complement); the robust scale anneals from a fraction of the
+        person's height (not of sigma) to gamma sigmas; then arms, hands and fingers are
+        re-posed from their palm landmarks and neighbouring frames where that fits better,
+        and S2 runs again
   S3    sigma' = sigma * clamp(e / tau, lo, 1) from the S2 reprojection errors e (tau tied to
         the image resolution) and a joint-acceleration penalty (LM, the neighbouring frames
         block-Jacobi, each person's step accepted on its whole energy)
@@ -44,6 +47,11 @@ from mamma_kit.fitting.projection import RigTensors
 
 RIGID_S1_PARTS = ("torso", "pelvis", "neck", "head")
 FINGER_JOINTS = np.arange(25, 55)
+# chains whose pose a neighbouring frame may lend (Fitter.repose_limbs), outer to
+# inner: the arms from the shoulder, the hands from the wrist, then each finger alone
+# (a hand where one finger found the right bend in some frames and another in others)
+ARM_ROOTS = (sk.JOINT_NAMES.index("left_shoulder"), sk.JOINT_NAMES.index("right_shoulder"))
+FINGER_ROOTS = tuple(j for j, n in enumerate(sk.JOINT_NAMES) if n.endswith("1") and j in FINGER_JOINTS)
 
 
 @dataclass
@@ -58,8 +66,18 @@ class FitConfig:
     s2_shape_iterations: int = 6  # stage 2 iterations that also update the shape
     s3_iterations: int = 6
     s4_iterations: int = 4
+    # stage 2's robust scale starts at this fraction of the person's height in each view (px)
+    # when wider than 30 sigmas, so how far a part may start from its landmarks does not
+    # depend on how small their sigma is (issue 20: exact landmarks left hands 128 mm off)
+    s2_wide_frac: float = 0.3
+    # after stage 2, arms, hands and fingers re-posed from the palm landmarks and from
+    # neighbouring frames where that fits better (Fitter.repose_limbs), then stage 2 again
+    repose_limbs: bool = True
+    repose_compare_frac: float = 0.1  # robust scale (fraction of the height, ~ a hand) judging a re-posed limb
+    s2b_wide_frac: float = 0.1  # robust scale at the start of the second stage-2 pass (fraction of the height)
     tau_px_4k: float = 10.0  # tau of the sigma rescaling, px at 3840 px image width (scaled with it)
     rescale_lo: float = 0.1
+    rescale_floor_frac: float = 1.0  # stage 3: rescaled sigma >= this x the median error of the body in the view
     accel_sigma: float = 30.0  # m/s^2
     finger_prior_sigma: float = 1.0  # rad
     body_prior_sigma: float = math.inf
@@ -72,6 +90,24 @@ class FitConfig:
         ps = np.full(sk.NUM_JOINTS, self.body_prior_sigma)
         ps[FINGER_JOINTS] = self.finger_prior_sigma
         return ps
+
+
+def rescale_sigma(e: torch.Tensor, w: torch.Tensor, sigma: torch.Tensor, tau: torch.Tensor | float, lo: float,
+                  floor_frac: float) -> torch.Tensor:
+    """Stage 3's factor on sigma (C, P, T, L) from the stage-2 pixel errors e (C, P, T, L).
+
+    The paper's clamp(e / tau, lo, 1), with a floor on the rescaled sigma of ``floor_frac``
+    times the median error of that body in that view (landmarks w > 0): a landmark may claim
+    to be as precise as the fit's current agreement allows, not more. With exact landmarks
+    the median error is near 0 and the paper's rescaling is left as it is; with noisy ones a
+    landmark whose noise happened to be small is not trusted 10 times more than its sigma
+    (stage 3 then fitted the noise: issue 20). sigma (C, P, T, L) px; 0 disables the floor."""
+    scale = (e / tau).clamp(lo, 1.0)
+    if floor_frac <= 0:
+        return scale
+    seen = w > 0
+    med = torch.where(seen, e, torch.full_like(e, torch.nan)).nanmedian(-1).values.nan_to_num(0.0)  # (C, P, T)
+    return torch.maximum(scale, (floor_frac * med[..., None] / sigma.clamp(min=1e-9)).clamp(max=1.0))
 
 
 @dataclass
@@ -154,7 +190,8 @@ class Fitter:
         rot = torch.eye(3, dtype=DTYPE).repeat(P, T, sk.NUM_JOINTS, 1, 1)
         rot[:, :, 0] = torch.as_tensor(R)
         st = State(torch.zeros(P, self.kin.shapedirs.shape[-1], dtype=DTYPE), rot, torch.as_tensor(tr))
-        return st, {"procrustes_frames": float(ok.mean()), "triangulated": float((info > 0).mean()), "ok": ok}
+        return st, {"procrustes_frames": float(ok.mean()), "triangulated": float((info > 0).mean()), "ok": ok,
+                    "X": X, "info": info}
 
     def _yaw_starts(self, obs: Obs, st: State, ok: np.ndarray, gcfg: GNConfig, n: int = 4) -> State:
         """Frames without a Procrustes orientation: stage 1 from ``n`` headings about the
@@ -186,6 +223,64 @@ class Fitter:
         st.transl[:, frames] = torch.where(bad[..., None], best.transl, st.transl[:, frames])
         return st
 
+    def repose_limbs(self, obs: Obs, st: State, X: np.ndarray, info: np.ndarray) -> tuple[State, dict]:
+        """Arms, hands and fingers re-posed from their own evidence after a first stage 2 (issue 20).
+
+        A hand that stage 2 left in a wrong minimum (palm turned 90-180 degrees) stays there:
+        its landmarks are outliers to the final robust scale. Per person, frame and chain
+        (ARM_ROOTS, the wrists, FINGER_ROOTS: the joint and all below it) this tries (a) the world orientation of its triangulated palm landmarks
+        (init.hand_orientations) with straight fingers, (b) the hand pose (wrist and finger
+        rotations relative to the forearm; for an arm or a finger, its chain's) of the frames
+        1, 2, 4, ... away (a hand seen well in one frame is a start for its neighbours seen by
+        one camera only), and keeps a candidate where it lowers the chain's robust reprojection
+        energy at a scale of ``repose_compare_frac`` of the person's height (at the final scale a wrong hand and a
+        candidate not yet refined would both be outliers). Returns the state and the share of
+        hands changed per kind of candidate."""
+        P, T = st.transl.shape[:2]
+        J0, v0 = self.kin.rest(st.betas)
+        W = self.kin.W.numpy()
+        par = self.kin.parents
+        out = st.clone()
+        taken = {"palm": 0.0, "neighbour": 0.0}
+        roots = ARM_ROOTS + finit.HAND_WRISTS + FINGER_ROOTS
+        for w in roots:
+            below = np.flatnonzero(self.kin.sub[w] & (np.arange(self.kin.J) != w))
+            js = np.r_[w, below]
+            lm = torch.as_tensor(np.isin(W.argmax(1), np.flatnonzero(self.kin.sub[w])), dtype=torch.float32)
+            gn = GaussNewton(self.kin, self.cams, obs, GNConfig(active=(0,), landmark_weight=lm,
+                                                                gamma_start=self.cfg.gamma,
+                                                                wide_frac=self.cfg.repose_compare_frac))
+
+            def energy(state: State) -> torch.Tensor:
+                return gn.data_terms(self.kin.forward(state.betas, state.rot, state.transl)["v"], gn.gamma0, jac=False)
+
+            def take(cand_rot: torch.Tensor, allowed: torch.Tensor, e_cur: torch.Tensor) -> tuple[torch.Tensor, float]:
+                cand = out.clone()
+                cand.rot[:, :, js] = torch.where(allowed[..., None, None, None], cand_rot, out.rot[:, :, js])
+                e_new = energy(cand)
+                better = allowed & (e_new < e_cur)
+                out.rot[:, :, js] = torch.where(better[..., None, None, None], cand.rot[:, :, js], out.rot[:, :, js])
+                return torch.where(better, e_new, e_cur), float(better.float().mean())
+
+            e_cur = energy(out)
+            if w in finit.HAND_WRISTS:
+                R, ok = finit.hand_orientations(v0.numpy(), J0.numpy(), X, info, finit.palm_landmarks(W, w), w)
+                G = self.kin.forward(out.betas, out.rot, out.transl)["G"]
+                palm = out.rot[:, :, js].clone()
+                palm[:, :, 0] = G[:, :, par[w]].to(DTYPE).transpose(-1, -2) @ torch.as_tensor(R, dtype=DTYPE)
+                palm[:, :, 1:] = torch.eye(3, dtype=DTYPE)
+                e_cur, share = take(palm, torch.as_tensor(ok), e_cur)
+                taken["palm"] += share / len(finit.HAND_WRISTS)
+            shift = 1
+            while shift < T:
+                for sgn in (1, -1):
+                    src = np.clip(np.arange(T) - sgn * shift, 0, T - 1)
+                    allowed = torch.as_tensor(np.abs(src - np.arange(T)) == shift).expand(P, T)
+                    e_cur, share = take(out.rot[:, src][:, :, js], allowed, e_cur)
+                    taken["neighbour"] += share / len(roots)
+                shift *= 2
+        return out, taken
+
     def stage12(self, d: FitData, betas: np.ndarray | None, stats: dict, stages: int) -> tuple[State, Obs]:
         cfg = self.cfg
         obs = self._obs(d)
@@ -194,7 +289,7 @@ class Fitter:
             st, info = self.initial_state(d)
             if betas is not None:
                 st.betas = torch.as_tensor(betas, dtype=DTYPE)
-        s0.extra.update({k: v for k, v in info.items() if k != "ok"})
+        s0.extra.update({k: v for k, v in info.items() if k not in ("ok", "X", "info")})
         s1 = stats.setdefault("stage1", StageStats("stage1"))
         with _Timer(s1):
             rep = GNReport()
@@ -217,8 +312,18 @@ class Fitter:
                 active=self.active_all, iterations=cfg.s2_iterations, max_iterations=2 * cfg.s2_iterations,
                 optimize_betas=betas is None,
                 betas_iterations=cfg.s2_shape_iterations, prior_sigma=cfg.prior_sigma(), gamma_start=30.0,
-                gamma_end=cfg.gamma))
+                gamma_end=cfg.gamma, wide_frac=cfg.s2_wide_frac))
             st, _ = gn.run(st, rep)
+            if cfg.repose_limbs:  # limbs re-posed from their own evidence, then the joint solve again
+                st, taken = self.repose_limbs(obs, st, info["X"], info["info"])
+                for k, v in taken.items():
+                    s2.extra[f"reposed_from_{k}"] = s2.extra.get(f"reposed_from_{k}", 0.0) + v
+                gn = GaussNewton(self.kin, self.cams, obs, GNConfig(
+                    active=self.active_all, iterations=cfg.s2_iterations, max_iterations=2 * cfg.s2_iterations,
+                    optimize_betas=betas is None, betas_iterations=cfg.s2_shape_iterations,
+                    prior_sigma=cfg.prior_sigma(), gamma_start=30.0, gamma_end=cfg.gamma,
+                    wide_frac=cfg.s2b_wide_frac))
+                st, _ = gn.run(st, rep)
             s2.energy_start += rep.energies[0] if rep.energies else 0.0
             s2.energy_end += rep.energies[-1] if rep.energies else 0.0
             s2.iterations += rep.iterations
@@ -269,7 +374,8 @@ class Fitter:
                 v0, _ = pose_restricted(self.model, pose_dict(pose_fixed, torch.as_tensor(transl, dtype=torch.float32),
                                                               betas_t))
                 e, _ = reproj0.pixel_errors(v0)
-            scale = (e / self.tau.reshape(-1, 1, 1, 1)).clamp(cfg.rescale_lo, 1.0)
+            scale = rescale_sigma(e, obs.w, obs.sigma.mean(-1), self.tau.reshape(-1, 1, 1, 1), cfg.rescale_lo,
+                                  cfg.rescale_floor_frac)
             obs3 = Obs(obs.xy, obs.sigma * scale[..., None].to(obs.sigma.dtype), obs.w)
             from mamma_kit.fitting.kinematics import so3_exp
 
