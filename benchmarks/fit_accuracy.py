@@ -16,6 +16,16 @@ final stage), and for two people the mean penetration depth and penetrating vert
 frame after stage 3 and stage 4 (and of the ground truth itself).
 Paper: 12.96 mm (16 cameras, singles), 17.7 mm (dance); 2/4/8 cameras 24.1/13.7/13.3 mm
 (singles) and 47.7/20.2/17.7 mm (dance); contact stage: penetration 10.50 -> 8.46 mm.
+
+    nice -n 10 python benchmarks/fit_accuracy.py --sweep [--sweep-cases duo,studio]
+        [--noises 0,0.3%,...] [--outliers 0,0.05] [--clips 30,100] [--json out.json]
+
+--sweep (issue 20: better landmarks must never give a worse fit): landmark noise 0, 0.3,
+0.6, 1.2 and 2.4 % of the box height, with 0 and 5 % outliers, on seeds never used to tune
+the fit (SWEEP_CASES), each recipe rendered once (100 frames) and fitted on its first 30
+frames and on all 100. Prints MPJPE over all joints, body (0-21) and hands (25-54) per
+row, then the checks: exact landmarks <= 3 mm (body and hands), MPJPE never more than 10 %
+higher at a lower noise (same outliers; body and hands apart), and the 1.2 % / 5 % targets.
 """
 
 from __future__ import annotations
@@ -37,6 +47,21 @@ CASES = {
 }
 
 
+# --sweep: (recipe, seed never used for tuning, cameras, scale, frames rendered, MPJPE target
+# at 1.2 % noise and 5 % outliers). The fit was tuned on iphone-outdoor-duo seed 1618 and tiny.
+SWEEP_CASES = {
+    "duo": ("iphone-outdoor-duo", 2718, 4, 0.25, 100, 18.0),
+    "studio": ("studio-16cam-solo", 3141, 16, 0.25, 100, 13.0),
+}
+SWEEP_NOISES = ("0", "0.3%", "0.6%", "1.2%", "2.4%")
+SWEEP_OUTLIERS = (0.0, 0.05)
+SWEEP_CLIPS = (30, 100)
+EXACT_MAX_MM = 3.0  # issue 20: exact landmarks, body and hands
+MONOTONE_TOL = 0.10  # issue 20: at a lower noise MPJPE may rise by at most 10 %
+# a rise below this many mm is evaluation jitter, not a worse fit (exact landmarks end near 0)
+MONOTONE_ABS_MM = 0.5
+
+
 def mk(*args: str) -> None:
     """Run a mamma-kit command in a child process (nice'd, like every long job here)."""
     cmd = ["nice", "-n", "10", sys.executable, "-c", "import sys; from mamma_kit.cli.app import main; main(sys.argv[1:])",
@@ -45,8 +70,9 @@ def mk(*args: str) -> None:
 
 
 def prepare_workspace(recipe: str, out: Path, scale: float, frames: int | None, noise: str = "1.2%",
-                      outliers: float = 0.05, seed: int = 0):
-    """A cached synthetic workspace with gt calibration/timing and noisy gt landmarks."""
+                      outliers: float = 0.05, seed: int = 0, synth_seed: int | None = None):
+    """A cached synthetic workspace with gt calibration/timing and noisy gt landmarks
+    (``seed``: of the landmark noise; ``synth_seed``: of the scene, default the recipe's)."""
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.evaluation.fit import install_gt_calibration_and_timing
 
@@ -55,6 +81,8 @@ def prepare_workspace(recipe: str, out: Path, scale: float, frames: int | None, 
         args = ["synth", recipe, "--out", out, "--scale", scale, "--no-board", "-q"]
         if frames:
             args += ["--frames", frames]
+        if synth_seed is not None:
+            args += ["--seed", synth_seed]
         mk(*args)
         print(f"  rendered {recipe} in {time.perf_counter() - t0:.0f} s -> {out}", file=sys.stderr)
     ws = Workspace(out)
@@ -120,6 +148,58 @@ def _no_penetration(ws, results):
     return {k: float(np.mean([p[k] for p in per])) for k in keys}
 
 
+def sweep(a) -> dict:
+    """The noise sweep of --sweep (see module doc); returns the rows and the checks."""
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.fitting.cameras import pick_cameras
+
+    noises = a.noises.split(",") if a.noises else list(SWEEP_NOISES)
+    outliers = [float(x) for x in a.outliers.split(",")] if a.outliers else list(SWEEP_OUTLIERS)
+    clips = [int(x) for x in a.clips.split(",")] if a.clips else list(SWEEP_CLIPS)
+    rows, checks = [], []
+    print(f"{'capture':22s} {'seed':>5s} {'cams':>4s} {'frames':>6s} {'noise':>6s} {'outl':>5s} "
+          f"{'MPJPE':>7s} {'body':>6s} {'hands':>6s} {'wall s':>7s}")
+    for case in a.sweep_cases.split(","):
+        recipe, seed, ncam, scale, frames, target = SWEEP_CASES[case]
+        root = a.cache / f"sweep_{case}_seed{seed}_s{int(scale * 100):03d}_f{frames}"
+        for out in outliers:
+            for noise in noises:
+                ws = prepare_workspace(recipe, root, scale, frames, noise=noise, outliers=out, synth_seed=seed)
+                rig, _ = read_calibration(ws.calibration)
+                cams = pick_cameras(rig, min(ncam, len(rig)))
+                for clip in clips:
+                    r = fit_and_evaluate(ws, cams, frames=clip if clip < frames else None)
+                    fin = r["stages"][max(r["stages"])]
+                    row = {"case": case, "recipe": recipe, "seed": seed, "cameras": len(cams), "frames": r["frames"],
+                           "clip": clip, "noise": noise, "outliers": out, "mpjpe_mm": fin["mpjpe_mm"],
+                           "body_mm": fin["mpjpe_body_mm"], "hands_mm": fin["mpjpe_hands_mm"],
+                           "wall_s": r["wall_s"], "target_mm": target}
+                    rows.append(row)
+                    print(f"{recipe:22s} {seed:5d} {len(cams):4d} {r['frames']:6d} {noise:>6s} {out:5.2f} "
+                          f"{row['mpjpe_mm']:7.2f} {row['body_mm']:6.2f} {row['hands_mm']:6.2f} "
+                          f"{r['wall_s']:7.0f}", flush=True)
+    key = lambda r: (r["case"], r["clip"], r["outliers"])  # noqa: E731
+    for k in sorted({key(r) for r in rows}):
+        grp = sorted((r for r in rows if key(r) == k), key=lambda r: float(r["noise"].rstrip("%")))
+        name = f"{k[0]} {k[1]} frames, outliers {k[2]:.2f}"
+        for lo, hi in zip(grp, grp[1:]):
+            for m in ("body_mm", "hands_mm"):
+                ok = lo[m] <= hi[m] * (1 + MONOTONE_TOL) + MONOTONE_ABS_MM
+                checks.append({"check": f"{name}: {m[:-3]} at noise {lo['noise']} <= 1.1 x noise {hi['noise']}",
+                               "values": [lo[m], hi[m]], "pass": bool(ok)})
+        for r in grp:
+            if float(r["noise"].rstrip("%")) == 0 and r["outliers"] == 0:
+                for m in ("body_mm", "hands_mm"):
+                    checks.append({"check": f"{name}: exact landmarks {m[:-3]} <= {EXACT_MAX_MM} mm",
+                                   "values": [r[m]], "pass": bool(r[m] <= EXACT_MAX_MM)})
+            if r["noise"] == "1.2%" and abs(r["outliers"] - 0.05) < 1e-9:
+                checks.append({"check": f"{name}: noise 1.2 % MPJPE <= {r['target_mm']} mm",
+                               "values": [r["mpjpe_mm"]], "pass": bool(r["mpjpe_mm"] <= r["target_mm"])})
+    for c in checks:
+        print(f"{'PASS' if c['pass'] else 'FAIL'}  {c['check']}  ({', '.join(f'{v:.2f}' for v in c['values'])})")
+    return {"rows": rows, "checks": checks}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/mk_fit_bench"))
@@ -127,6 +207,11 @@ def main() -> None:
     ap.add_argument("--counts", default=None, help="camera counts (default: per case)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--sweep", action="store_true", help="the landmark-noise sweep (see above) instead")
+    ap.add_argument("--sweep-cases", default="duo,studio")
+    ap.add_argument("--noises", default=None, help="noise levels of --sweep (default 0,0.3%%,0.6%%,1.2%%,2.4%%)")
+    ap.add_argument("--outliers", default=None, help="outlier fractions of --sweep (default 0,0.05)")
+    ap.add_argument("--clips", default=None, help="clip lengths (frames) of --sweep (default 30,100)")
     a = ap.parse_args()
     import torch
 
@@ -136,6 +221,12 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     print(f"# fit accuracy; torch {torch.__version__}, {a.threads} threads, load average "
           f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
+    if a.sweep:
+        report = sweep(a)
+        print(f"# load average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+        if a.json:
+            a.json.write_text(json.dumps(report, indent=1, default=float))
+        return
     report = {}
     for case in a.cases.split(","):
         recipe, scale, frames, counts, target = CASES[case]

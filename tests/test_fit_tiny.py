@@ -68,3 +68,43 @@ def test_tiny_fit_recovers_joints(tiny_fit, cli):
     # unchanged inputs: the stage is skipped and says so; --force recomputes
     r = cli("fit", ws.root, "--json", "-q")
     assert r.code == 0 and json.loads(r.out)["skipped"] is True
+
+
+EXACT_HANDS_MAX_MM = 5.0  # issue 20: exact landmarks must not leave the hands off (they were 7.5 mm, 128 on the duo)
+EXACT_BODY_MAX_MM = 3.0
+# measured: body 0.3 mm, hands 4.3 mm; what is left is fingers seen by one camera only,
+# whose bend the two facing views cannot tell from its mirror image
+
+
+def test_tiny_exact_landmarks_fit_hands(tiny_fit, tmp_path):
+    """Exact landmarks (noise 0, no outliers) of the very body that made them: the fit ends
+    within a few mm of it, hands included, however small the landmarks' sigma."""
+    import shutil
+    from pathlib import Path
+
+    from mamma_kit.body.model import load_body_model
+    from mamma_kit.cli.app import main
+    from mamma_kit.core.smplxfile import SmplxResult
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.evaluation.fit import evaluate_results
+    from mamma_kit.fitting import FitConfig, Fitter
+    from mamma_kit.fitting.data import load_fit_data
+
+    ws_dir = tmp_path / "exact"
+    top = Path(tiny_fit.root)
+    # the rendered capture and its ground truth, not the noisy run's outputs
+    shutil.copytree(top, ws_dir, ignore=lambda d, names: [n for n in names if Path(d) == top and
+                                                          n in ("smplx", ".cache", "landmarks")])
+    try:
+        main(["landmarks", str(ws_dir), "--source", "gt", "--noise", "0", "--outliers", "0", "-q"])
+    except SystemExit as e:
+        assert e.code in (0, None)
+    ws = Workspace(ws_dir)
+    model = load_body_model("open")
+    data = load_fit_data(ws, n_landmarks=len(model.landmark_ids))
+    res = Fitter(model, data, FitConfig(stages=3)).fit()
+    r = SmplxResult.from_params(res.params(0), res.joints[0], res.frame_times, res.fps, model.name, model.sha256,
+                                producer={"reference": data.reference, "person": int(res.person_ids[0])})
+    ev = evaluate_results(ws, [r], penetration_frames=None)
+    assert ev["mpjpe_body_mm"] <= EXACT_BODY_MAX_MM, ev
+    assert ev["mpjpe_hands_mm"] <= EXACT_HANDS_MAX_MM, ev
