@@ -106,3 +106,16 @@ def test_rig_transform_preserves_projection():
     s = 1.7
     moved = rig.transformed(R_w, t_w, s)
     assert np.abs(moved.project(s * X @ R_w.T + t_w) - rig.project(X)).max() < 1e-8
+
+
+def test_triangulate_points_recovers_points_seen_by_two_or_more_cameras(ring_rig):
+    from mamma_kit.core.camera import triangulate_points
+
+    rng = np.random.default_rng(3)
+    X = rng.uniform([-1, -1, 0], [1, 1, 2], (50, 3))
+    xy = np.stack([cam.project(X) for cam in ring_rig])
+    w = np.ones(xy.shape[:2])
+    w[1:, -5:] = 0  # the last five seen by one camera only
+    Xt = triangulate_points(ring_rig, xy, w)
+    np.testing.assert_allclose(Xt[:-5], X[:-5], atol=1e-8)
+    assert np.isnan(Xt[-5:]).all()

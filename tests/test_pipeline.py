@@ -65,12 +65,12 @@ def test_first_run_runs_every_stage_and_second_skips_all(reference):
 
     ws, run = reference
     st = {k: v["status"] for k, v in run["stages"].items()}
-    assert st == {"calibrate": "provided", "sync": "ran", "track": "ran", "landmarks": "ran", "match": "ran",
+    assert st == {"calibrate": "provided", "sync": "ran", "track": "ran", "keypoints": "ran", "landmarks": "ran", "match": "ran",
                   "fit": "ran", "report": "ran"}
     assert (ws / "report" / "index.html").is_file()
     again = capture_to_smplx(ws, progress=False)
     assert {k: v["status"] for k, v in again["stages"].items()} == {
-        "calibrate": "provided", "sync": "skipped", "track": "skipped", "landmarks": "skipped", "match": "skipped",
+        "calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "skipped", "match": "skipped",
         "fit": "skipped", "report": "skipped"}
     # the fit recovers the person (the numbers themselves are tested in test_fit_tiny.py)
     from mamma_kit.core.workspace import Workspace
@@ -104,7 +104,7 @@ def test_ctrl_c_mid_stage_resumes_and_ends_with_the_same_result(template, refere
 
     run = capture_to_smplx(ws, to_stage="fit", progress=False)
     st = {k: v["status"] for k, v in run["stages"].items()}
-    assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "landmarks": "ran",
+    assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "ran",
                   "match": "ran", "fit": "ran"}
     cams = {c["camera"]: c["skipped"] for c in run["stages"]["landmarks"]["summary"]["cameras"]}
     assert cams == {"cam0": True, "cam1": False}
@@ -134,7 +134,7 @@ def test_killed_process_resumes(template, reference, tmp_path):
     run = capture_to_smplx(ws, to_stage="fit", progress=False)
     st = {k: v["status"] for k, v in run["stages"].items()}
     assert st["fit"] == "ran" and all(st[s] in ("skipped", "provided") for s in
-                                      ("calibrate", "sync", "track", "landmarks", "match"))
+                                      ("calibrate", "sync", "track", "keypoints", "landmarks", "match"))
     ref = _results(reference[0])
     got = _results(ws)
     for k in ref:
@@ -151,13 +151,13 @@ def test_a_changed_input_recomputes_exactly_what_depends_on_it(template, tmp_pat
     cap["settings"]["landmarks"]["seed"] = 1
     write_toml(ws / "capture.toml", cap)
     st = {k: v["status"] for k, v in capture_to_smplx(ws, to_stage="fit", progress=False)["stages"].items()}
-    assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "landmarks": "ran",
+    assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "ran",
                   "match": "ran", "fit": "ran"}
     # a new fit setting: only the fit
     cap["settings"]["fit"] = {"stages": 3}
     write_toml(ws / "capture.toml", cap)
     st = {k: v["status"] for k, v in capture_to_smplx(ws, to_stage="fit", progress=False)["stages"].items()}
-    assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "landmarks": "skipped",
+    assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "skipped",
                   "match": "skipped", "fit": "ran"}
     # an edited output is never silently reused: its stage is redone
     (ws / "identities.json").write_text((ws / "identities.json").read_text() + " ")

@@ -309,3 +309,26 @@ class Rig:
             t = scale * c.t - R @ t_w
             out.append(c.copy(R=R, t=t))
         return Rig(out)
+
+
+def triangulate_points(rig: Rig, xy_cn2: np.ndarray, weight_cn: np.ndarray) -> np.ndarray:
+    """Weighted linear (DLT) triangulation of N points seen by the rig's C cameras.
+
+    xy_cn2 (C, N, 2) distorted pixels (NaN where unseen), weight_cn (C, N) >= 0 (0 = unseen).
+    Returns X_n3 (N, 3) world points, NaN where fewer than two cameras see the point. Rows are
+    built on undistorted normalised coordinates, so each view's equations are in the same units.
+    """
+    xy = np.asarray(xy_cn2, float)
+    w = np.where(np.isfinite(xy).all(-1), np.asarray(weight_cn, float), 0.0)
+    C, N = w.shape
+    A = np.zeros((N, 2 * C, 4))
+    for c, cam in enumerate(rig):
+        xn = cam.unproject(np.nan_to_num(xy[c]))[:, :2]  # (N, 2)
+        P = np.hstack([cam.R, cam.t[:, None]])  # normalised camera matrix
+        A[:, 2 * c] = w[c, :, None] * (xn[:, :1] * P[2] - P[0])
+        A[:, 2 * c + 1] = w[c, :, None] * (xn[:, 1:] * P[2] - P[1])
+    _, _, Vt = np.linalg.svd(A)
+    Xh = Vt[:, -1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = Xh[:, :3] / Xh[:, 3:]
+    return np.where(((w > 0).sum(0) >= 2)[:, None], X, np.nan)

@@ -69,6 +69,19 @@ def ssd_anchors(size: int = DET_SIZE, strides=(8, 16, 32, 32, 32)) -> np.ndarray
 
 
 ANCHORS_A2 = ssd_anchors()
+# anchors per grid (28x28x2, 14x14x2, 7x7x6): a batch of B inputs comes out grid by grid, each
+# grid holding all B inputs' anchors, so the batch is unfolded grid by grid
+ANCHOR_GRIDS = (1568, 392, 294)
+
+
+def unfold_detector_batch(y_1n: np.ndarray, batch: int) -> np.ndarray:
+    """The detector's (1, B * 2254, D) output -> (B, 2254, D) in ssd_anchors' order."""
+    y = y_1n.reshape(-1, y_1n.shape[-1])
+    parts, o = [], 0
+    for n in ANCHOR_GRIDS:
+        parts.append(y[o:o + batch * n].reshape(batch, n, -1))
+        o += batch * n
+    return np.concatenate(parts, 1)
 
 
 def letterbox(image_hw3: np.ndarray, size: int = DET_SIZE) -> tuple[np.ndarray, np.ndarray]:

@@ -59,8 +59,8 @@ def model_path(name: str) -> Path:
 class TfliteModel:
     """One .tflite model on LiteRT's CPU interpreter, invoked on batches.
 
-    ``run(x_bhwc)`` -> list of output arrays, each with the batch first. The interpreter's input
-    is resized when the batch size changes (both BlazePose models accept any batch).
+    ``run(x_bhwc)`` -> list of output arrays as the model gives them. The interpreter's input is
+    resized when the batch size changes (both BlazePose models accept any batch).
     """
 
     def __init__(self, name: str, threads: int | None = None):
@@ -93,9 +93,6 @@ class TfliteModel:
             self.batch = b
         self.interp.set_tensor(self.input_index, np.ascontiguousarray(x_bhwc, np.float32))
         self.interp.invoke()
-        outs = []
-        for i in self.output_index:
-            y = self.interp.get_tensor(i)
-            # the detector's reshape folds the batch into its anchor axis: put the batch first again
-            outs.append(y.reshape(b, -1, *y.shape[2:]) if y.shape[0] != b else y.copy())
-        return outs
+        # as the model gives them: an output whose graph folds the batch into another axis (the
+        # detector's anchors) comes back with a first axis of 1, for the caller to unfold
+        return [self.interp.get_tensor(i).copy() for i in self.output_index]

@@ -19,6 +19,7 @@ from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.manifest import StageManifest, producer
 from mamma_kit.core.tracks import KeypointTracks, MaskTracks, nearest_frames
+from mamma_kit.keypoints.estimator import MIN_FOLLOW_FLAG
 
 MODEL_NAME = "blazepose-ghum-full"
 # a followed ROI is kept while its centre stays inside the track's box grown by this share and its
@@ -87,7 +88,7 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
                     else:
                         rois[j] = _box_roi(boxes[j])
             res = est.landmarks(img, rois, masks=mlist if blank else None)
-            ok = res.score >= 0.5
+            ok = res.score >= MIN_FOLLOW_FLAG
             for j, k in enumerate(cols):
                 follow[int(k)] = res.next_rois[j]
                 last_t[int(k)] = t

@@ -21,6 +21,7 @@ from scipy.optimize import linear_sum_assignment
 
 from mamma_kit.core import log
 from mamma_kit.core.tracks import MaskTracks
+from mamma_kit.keypoints.estimator import MIN_FOLLOW_FLAG, MIN_POSE_FLAG
 from mamma_kit.masks.base import CameraInput, MaskTrackBuilder, track_summary
 
 # two detections (whole frame and a tile) whose ROI centres lie within this share of the side are
@@ -29,8 +30,14 @@ MATCH_SHARE = 0.2
 # a skeleton is the same person as a track's last one when its points lie within this share of the
 # track's ROI side (60 fps or 30 fps motion between two frames stays well inside)
 TRACK_SHARE = 0.12
-# a followed person unseen this many frames is given up
-MAX_MISSED = 8
+# a followed person unseen this many frames is given up (half a second at 60 fps: long enough to
+# pass behind someone and keep the id)
+MAX_MISSED = 30
+# while hidden behind someone, a person keeps its visible sliver for this many frames if it holds
+# at least this share of its last full mask; such masks score COAST_SCORE
+MAX_COAST = 30
+MIN_COAST_AREA = 0.03
+COAST_SCORE = 0.1
 # tiles are looked at every this many frames (new people enter rarely; the detector costs 5 ms a call)
 TILE_EVERY = 5
 # a person's mask reaches at most this share of its ROI side from its skeleton
@@ -40,6 +47,16 @@ REACH_SHARE = 0.16
 SAME_SHARE = 0.06
 # the limb joints (shoulders, elbows, wrists, hips, knees, ankles) that tell people apart
 BODY = np.r_[11:17, 23:29]
+# the same joints with left and right swapped: BlazePose can swap sides on one person from one ROI
+# to the next (a person seen from behind), which must not make two people of one
+BODY_SWAPPED = np.r_[12, 11, 14, 13, 16, 15, 24, 23, 26, 25, 28, 27]
+
+
+def limb_distance(xy_a: np.ndarray, xy_b: np.ndarray) -> float:
+    """Median distance (px) of two skeletons' limb joints, the smaller of as-is and sides swapped."""
+    d = np.median(np.linalg.norm(xy_a[BODY] - xy_b[BODY], axis=1))
+    d_sw = np.median(np.linalg.norm(xy_a[BODY] - xy_b[BODY_SWAPPED], axis=1))
+    return float(min(d, d_sw))
 # fragments are joined across a gap of at most this many frames where the boxes meet
 JOIN_GAP = 15
 JOIN_SHARE = 0.5
@@ -54,6 +71,7 @@ class _Track:
     last: int
     xy: np.ndarray | None = None  # (33, 2) its last points
     vis: np.ndarray | None = None  # (33,)
+    area: int = 0  # its last mask's pixels
     missed: int = 0
     boxes: dict = field(default_factory=dict)  # frame -> (4,) box
 
@@ -131,8 +149,8 @@ class PoseBackend:
         (limb joints only: two people's heads can touch)."""
         keep: list[int] = []
         for n in order:
-            same = any(np.median(np.linalg.norm(res.xy[n, BODY] - res.xy[m, BODY], axis=1))
-                       < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2]) for m in keep)
+            same = any(limb_distance(res.xy[n], res.xy[m]) < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2])
+                       for m in keep)
             if not same:
                 keep.append(int(n))
         return keep
@@ -143,8 +161,7 @@ class PoseBackend:
         cost = np.full((len(tracks), len(cands)), np.inf)
         for i, tr in enumerate(tracks):
             for j, n in enumerate(cands):
-                d = np.linalg.norm(tr.xy[BODY] - res.xy[n, BODY], axis=1)
-                cost[i, j] = np.median(d) / max(tr.roi[2], 1.0)
+                cost[i, j] = limb_distance(tr.xy, res.xy[n]) / max(tr.roi[2], 1.0)
         return cost
 
     def _masks(self, res, chosen: np.ndarray, W: int, H: int) -> list[np.ndarray | None]:
@@ -205,6 +222,28 @@ class PoseBackend:
             out.append(~blank)
         return out
 
+    @staticmethod
+    def _coast(tracks, got, res, source, builder, prev, ti: int, W: int, H: int) -> None:
+        """A followed person hidden behind another (its ROI's skeleton is the other's) keeps the
+        pixels of its ROI's segmentation that are near its last skeleton and no one else's: the
+        visible sliver, so its track does not break while it passes behind someone."""
+        taken = [prev[tr.tid] for i, tr in enumerate(tracks) if i in got and tr.tid in prev]
+        others = np.logical_or.reduce(taken) if taken else np.zeros((H, W), bool)
+        for i, tr in enumerate(tracks):
+            if i in got or tr.xy is None or not 0 < tr.missed <= MAX_COAST:
+                continue
+            n = int(np.flatnonzero(source == i)[0])
+            prob, (x0, y0) = res.segmentation_of(n, (W, H))
+            if prob.size == 0:
+                continue
+            box = (x0, y0, x0 + prob.shape[1], y0 + prob.shape[0])
+            near = skeleton_distance(tr.xy, np.ones(len(tr.xy)), box) <= REACH_SHARE * tr.roi[2]
+            m = np.zeros((H, W), bool)
+            m[y0:box[3], x0:box[2]] = (prob > SEG_THRESHOLD) & near
+            m &= ~others
+            if m.sum() >= MIN_COAST_AREA * max(tr.area, 1):
+                builder.add(ti, tr.tid, m, COAST_SCORE)
+
     # ---- the video ------------------------------------------------------------------------------------
     def track_camera(self, cam: CameraInput) -> tuple[MaskTracks, dict]:
         from mamma_kit.video.reader import VideoReader
@@ -227,7 +266,7 @@ class PoseBackend:
             keep = self._keep_masks(tracks, prev, W, H)
             keep = (keep + [None] * len(det)) if keep is not None else None
             res = est.landmarks(img, rois, masks=keep)
-            good = np.flatnonzero(res.score >= 0.5)
+            good = np.flatnonzero(res.score >= np.where(source >= 0, MIN_FOLLOW_FLAG, MIN_POSE_FLAG))
             # the same skeleton found twice: keep the best-scoring candidate
             cands = self._distinct(res, good[np.argsort(-res.score[good])])
             cost = self._skeleton_cost(tracks, res, cands)
@@ -253,6 +292,7 @@ class PoseBackend:
                     if m is not None and m.any():
                         builder.add(ti, tr.tid, m, float(res.score[n]))
                         prev[tr.tid] = m
+                        tr.area = int(m.sum())
                         ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
                         tr.boxes[ti] = np.array([xs[0], ys[0], xs[-1] + 1, ys[-1] + 1], float)
                     tr.roi, tr.last, tr.missed = res.next_rois[n], ti, 0
@@ -262,6 +302,7 @@ class PoseBackend:
                     prev.pop(tr.tid, None)
                     tr.missed += 1
                     (alive if tr.missed < MAX_MISSED else finished).append(tr)
+            self._coast(tracks, got, res, source, builder, prev, ti, W, H)
             tracks = alive
         finished += tracks
         mt = builder.build()

@@ -1,0 +1,141 @@
+"""The `pose` tracker and the keypoints stage on real footage (shared/real/pose2sim-multiperson: four
+synchronised portrait cameras, two people, bystanders), and on a video with nobody in it."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mamma_kit.core.tracks import KeypointTracks, MaskTracks
+
+REPO = Path(__file__).resolve().parents[1]
+REAL = REPO.parent / "shared" / "real" / "pose2sim-multiperson"
+CAMS = ("cam01", "cam02", "cam03", "cam04")
+# frames 40-59: the two people close together, in cam03 one passing behind the other
+FIRST, COUNT = 40, 20
+LIMBS = np.r_[11:17, 23:29]
+
+
+def clip(src: Path, dst: Path) -> Path:
+    from mamma_kit.video import VideoReader
+    from mamma_kit.video.writer import write_video
+
+    r = VideoReader(src)
+    frames = [img for _, _, img in r.read_indices(range(FIRST, FIRST + COUNT))]
+    return write_video(dst, frames, r.timestamps[FIRST:FIRST + COUNT] - r.timestamps[FIRST], fps=60.0, crf=16)
+
+
+@pytest.fixture(scope="module")
+def real_ws(tmp_path_factory):
+    if not (REAL / "videos" / "cam01.mp4").is_file():
+        pytest.skip(f"{REAL} not present (CI has shared/ beside the repo)")
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.keypoints.stage import run_keypoints
+    from mamma_kit.masks.stage import run_track
+    from mamma_kit.pipeline import init_workspace
+
+    tmp = tmp_path_factory.mktemp("real")
+    vids = [clip(REAL / "videos" / f"{c}.mp4", tmp / f"{c}.mp4") for c in CAMS]
+    init_workspace(tmp / "ws", vids, calibration=REAL / "calibration" / "Calib.qca.txt", people=2)
+    ws = Workspace(tmp / "ws")
+    run_track(ws, backend="pose", people=2, pictures=False)
+    run_keypoints(ws, pictures=False)
+    return ws
+
+
+def test_pose_tracker_keeps_exactly_the_two_people_in_every_view(real_ws):
+    both = []
+    for c in CAMS:
+        mt = MaskTracks.load(real_ws.mask_file(c))
+        assert len(mt.track_ids) == 2, f"{c}: {len(mt.track_ids)} tracks"
+        both.append(mt.present.all(1))
+        # two different people: their masks barely overlap and their boxes differ
+        for t in np.flatnonzero(mt.present.all(1)):
+            a, b = mt.mask(t, 0), mt.mask(t, 1)
+            assert (a & b).sum() == 0
+    assert np.mean(both) >= 0.95, f"both people tracked in {np.mean(both):.0%} of the (view, frame) pairs"
+
+
+def test_keypoints_fall_inside_their_own_track(real_ws):
+    import cv2
+
+    for c in CAMS:
+        mt = MaskTracks.load(real_ws.mask_file(c))
+        kt = KeypointTracks.load(real_ws.keypoints_file(c))
+        assert kt.valid.sum() >= 0.95 * mt.present.sum()
+        inside = []
+        for t, k in zip(*np.nonzero(kt.valid)):
+            m = mt.mask(t, k)
+            # the mask grown by 2 % of the person's height: a point on an outline counts as on it
+            h = mt.boxes[t, k, 3] - mt.boxes[t, k, 1]
+            r = max(1, int(0.02 * h))
+            m = cv2.dilate(m.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+            pts = kt.xy[t, k, LIMBS][kt.visibility[t, k, LIMBS] > 0.5]
+            ij = np.round(pts).astype(int)
+            ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < m.shape[1]) & (ij[:, 1] < m.shape[0])
+            inside += list(np.where(ok, m[np.clip(ij[:, 1], 0, m.shape[0] - 1), np.clip(ij[:, 0], 0, m.shape[1] - 1)],
+                                    False))
+        assert np.mean(inside) >= 0.9, f"{c}: {np.mean(inside):.0%} of visible limb points inside their track"
+
+
+def test_keypoints_triangulate_with_the_qualisys_calibration(real_ws):
+    """BlazePose's points from the four views, triangulated with the converted Qualisys rig,
+    reproject within 3 % of the person's height (a wrong conversion is off by tens of percent)."""
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.camera import triangulate_points
+
+    rig, _ = read_calibration(real_ws.calibration)
+    rig = rig.subset(list(CAMS))
+    kts = [KeypointTracks.load(real_ws.keypoints_file(c)) for c in CAMS]
+    mts = [MaskTracks.load(real_ws.mask_file(c)) for c in CAMS]
+    T = min(len(k.frame_times) for k in kts)
+
+    def errors(perm):
+        """Reprojection errors (% of height) with camera c's track perm[c][p] as person p."""
+        out = []
+        for p in range(2):
+            xy = np.stack([kts[c].xy[:T, perm[c][p], :, :] for c in range(4)])  # (C, T, 33, 2)
+            w = np.stack([np.where(kts[c].valid[:T, perm[c][p], None], kts[c].visibility[:T, perm[c][p]], 0)
+                          for c in range(4)])
+            X = triangulate_points(rig, xy.reshape(4, -1, 2), w.reshape(4, -1)).reshape(T, 33, 3)
+            proj = rig.project(X)  # (C, T, 33, 2)
+            h = np.stack([mts[c].boxes[:T, perm[c][p], 3] - mts[c].boxes[:T, perm[c][p], 1]
+                          for c in range(4)])  # (C, T) the person's height: its mask's box, px
+            err = np.linalg.norm(proj - xy, axis=-1) / h[..., None] * 100
+            out.append(err[(w > 0.5) & np.isfinite(err)])
+        return np.concatenate(out)
+
+    perms = [[(0, 1)] + [tuple(q) for q in rest] for rest in itertools.product([(0, 1), (1, 0)], repeat=3)]
+    med = min(np.median(errors(p)) for p in perms)
+    assert med < 3.0, f"median reprojection {med:.2f} % of the person's height"
+
+
+def test_video_with_nobody_gives_no_tracks_and_an_empty_keypoints_file(tmp_path, cli):
+    from mamma_kit.pipeline import init_workspace
+    from mamma_kit.video.writer import write_video
+
+    yy, xx = np.mgrid[0:240, 0:320]
+    frames = [np.dstack([(xx + 3 * i) % 256, yy % 256, np.full_like(xx, 90)]).astype(np.uint8) for i in range(6)]
+    vids = [write_video(tmp_path / f"empty{i}.mp4", frames, np.arange(6) / 30.0) for i in range(2)]
+    init_workspace(tmp_path / "ws", vids)
+    res = cli("track", str(tmp_path / "ws"), "--backend", "pose", "--json", "--quiet")
+    assert res.code == 0, res.err
+    res = cli("keypoints", str(tmp_path / "ws"), "--json")
+    assert res.code == 0, res.err
+    assert "no tracked person" in res.err
+    kt = KeypointTracks.load(tmp_path / "ws" / "keypoints" / "empty0.npz")
+    assert kt.valid.shape[1] == 0 and len(kt.frame_times) == 6
+
+
+def test_keypoints_without_masks_says_to_track_first(tmp_path, cli):
+    from mamma_kit.pipeline import init_workspace
+    from mamma_kit.video.writer import write_video
+
+    vids = [write_video(tmp_path / f"a{i}.mp4", [np.zeros((64, 64, 3), np.uint8)] * 2, [0.0, 1 / 30])
+            for i in range(2)]
+    init_workspace(tmp_path / "ws", vids)
+    res = cli("keypoints", str(tmp_path / "ws"))
+    assert res.code == 2 and "run `mamma-kit track" in res.err and "Traceback" not in res.err
