@@ -139,3 +139,28 @@ def test_keypoints_without_masks_says_to_track_first(tmp_path, cli):
     init_workspace(tmp_path / "ws", vids)
     res = cli("keypoints", str(tmp_path / "ws"))
     assert res.code == 2 and "run `mamma-kit track" in res.err and "Traceback" not in res.err
+
+
+def test_an_altered_model_file_stops_the_command_with_one_line(tmp_path, cli, monkeypatch):
+    import shutil
+
+    from mamma_kit.keypoints import runtime
+    from mamma_kit.pipeline import init_workspace
+    from mamma_kit.video.writer import write_video
+
+    vids = [write_video(tmp_path / f"a{i}.mp4", [np.zeros((64, 64, 3), np.uint8)] * 2, [0.0, 1 / 30])
+            for i in range(2)]
+    init_workspace(tmp_path / "ws", vids)
+    models = tmp_path / "models"
+    models.mkdir()
+    shutil.copy(runtime.MODELS_DIR / runtime.DETECTOR, models / runtime.DETECTOR)
+    data = bytearray((runtime.MODELS_DIR / runtime.LANDMARKER).read_bytes())
+    data[len(data) // 2] ^= 0x01
+    (models / runtime.LANDMARKER).write_bytes(bytes(data))
+    monkeypatch.setenv(runtime.MODELS_ENV, str(models))
+    res = cli("track", str(tmp_path / "ws"), "--backend", "pose")
+    assert res.code == 2 and "altered or corrupt" in res.err and "Traceback" not in res.err
+    assert len(res.err.strip().splitlines()) == 1
+    (models / runtime.LANDMARKER).unlink()
+    res = cli("track", str(tmp_path / "ws"), "--backend", "pose")
+    assert res.code == 2 and "keypoint model file missing" in res.err

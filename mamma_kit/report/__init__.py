@@ -76,6 +76,8 @@ class _Builder:
              lambda: ws.timing.is_file() and read_toml(ws.timing, "timing file").get("producer")),
             ("track", ws.masks_dir, lambda: f"masks/ ({_n(len(d.mask_tracks), 'camera')})",
              lambda: d.mask_tracks and first(d.mask_tracks).producer),
+            ("keypoints", ws.keypoints_dir, lambda: f"keypoints/ ({_n(len(d.keypoints), 'camera')})",
+             lambda: d.keypoints and first(d.keypoints).producer),
             ("landmarks", ws.landmarks_dir,
              lambda: f"landmarks/ ({_n(len(d.landmarks), 'camera')}, source "
                      f"{', '.join(sorted({x.source for x in d.landmarks.values()})) or '?'})",
@@ -85,7 +87,8 @@ class _Builder:
              lambda: d.people and d.people[0].result.producer),
         ]
         present = {"calibrate": ws.calibration.is_file(), "sync": ws.timing.is_file(),
-                   "track": any(ws.masks_dir.glob("*.npz")), "landmarks": any(ws.landmarks_dir.glob("*.npz")),
+                   "track": any(ws.masks_dir.glob("*.npz")), "keypoints": any(ws.keypoints_dir.glob("*.npz")),
+                   "landmarks": any(ws.landmarks_dir.glob("*.npz")),
                    "match": ws.identities.is_file(), "fit": bool(ws.person_files())}
         rows = []
         for stage, path, what, prod in stages:
@@ -187,6 +190,19 @@ class _Builder:
                 p = self.out / "tracks" / f"{c}.png"
                 if p.is_file():
                     s.figure(self.rel(p), p, f"{c}: the frame with the most tracks, masks tinted by track id.")
+        kp = d.keypoints
+        if not kp:
+            s.missing("no keypoints (keypoints/)", "mamma-kit keypoints WORKSPACE")
+        else:
+            s.table(["camera", "person-frames with keypoints", "tracked person-frames", "median pose score"],
+                    [[c, int(k.valid.sum()), int(mt[c].present.sum()) if c in mt else "—",
+                      f"{np.median(k.score[k.valid]):.2f}" if k.valid.any() else "—"] for c, k in kp.items()],
+                    "BlazePose keypoints per view")
+            for c in d.cameras:
+                p = self.out / "keypoints" / f"{c}.png"
+                if p.is_file():
+                    s.figure(self.rel(p), p, f"{c}: BlazePose's points on frames spread over the capture, "
+                                             "coloured by track (hollow: unlikely visible).")
         if d.identities is None:
             s.missing("no identities.json (which track shows which person)", "mamma-kit match WORKSPACE")
             return s
@@ -461,7 +477,7 @@ def report_inputs(ws) -> list[Path]:
     root = ws.root
     files = [ws.capture_toml, ws.calibration, ws.timing, ws.identities]
     for pattern in ("masks/*.npz", "landmarks/*.npz", "smplx/*.npz", "smplx/*.json", "report/calibration/*.png",
-                    "report/sync/*.png", "report/tracks/*.png", "report/match/*.png", "gt/**/*.npz", "gt/*.toml"):
+                    "report/sync/*.png", "report/tracks/*.png", "keypoints/*.npz", "report/keypoints/*.png", "report/match/*.png", "gt/**/*.npz", "gt/*.toml"):
         files += sorted(root.glob(pattern))
     return [p for p in files if p.is_file()]
 

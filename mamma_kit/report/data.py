@@ -102,6 +102,14 @@ class ReportData:
                 if self.ws.landmarks_file(c).is_file()}
 
     @cached_property
+    def keypoints(self) -> dict:
+        """camera -> KeypointTracks for every camera with keypoints/<cam>.npz."""
+        from mamma_kit.core.tracks import KeypointTracks
+
+        return {c: KeypointTracks.load(self.ws.keypoints_file(c)) for c in self.cameras
+                if self.ws.keypoints_file(c).is_file()}
+
+    @cached_property
     def mask_tracks(self) -> dict:
         from mamma_kit.core.tracks import MaskTracks
 
