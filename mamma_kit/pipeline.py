@@ -111,6 +111,14 @@ def _key_facts(stage: str, res: dict) -> str:
     return ""
 
 
+def _written_by_sync(timing: Path) -> bool:
+    """Whether timing.toml is mamma-kit sync's own output (else the user gave it: keep it)."""
+    from mamma_kit.core.io import read_toml
+
+    command = str((read_toml(timing, "timing file").get("producer") or {}).get("command", ""))
+    return command.startswith("sync")
+
+
 def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: bool = True) -> dict:
     """Run (or skip) one stage with capture.toml's options; returns its summary with 'status'."""
     opts = _options(cap, stage)
@@ -131,6 +139,9 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
     elif stage == "sync":
         from mamma_kit.timing.stage import run_sync
 
+        if ws.timing.is_file() and not force and not _written_by_sync(ws.timing):
+            return {"stage": "sync", "status": "provided",
+                    "note": "timing.toml given (not written by `mamma-kit sync`); --force recomputes it"}
         res = run_sync(ws, force=force)
     elif stage == "track":
         from mamma_kit.masks.stage import run_track
@@ -241,7 +252,7 @@ def _place(src: Path, dst: Path, copy: bool) -> str:
 def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path] | None = None,
                    board: str | None = None, names: list[str] | None = None, copy: bool = False,
                    backend: str = "builtin", force: bool = False, people: int | None = None,
-                   calibration: str | Path | None = None) -> dict:
+                   calibration: str | Path | None = None, synced: bool = False) -> dict:
     """A capture workspace for a user's own videos: they are hard-linked (or copied) into
     WORKSPACE/videos and WORKSPACE/board, so that capture.toml holds only paths inside the
     workspace, and each is checked to be a readable video before anything is written.
@@ -295,6 +306,8 @@ def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path
     data: dict = {"capture": {"name": ws.root.name, "body_model": "open", **({"people": people} if people else {})},
                   "cameras": cams,
                   "settings": {"track": {"backend": backend}}}
+    if synced:  # one clock for all cameras (genlock, a lab rig): no audio needed
+        data["settings"]["sync"] = {"method": "synced"}
     if board is not None:
         from mamma_kit.calibration.board import load_board_spec
         from mamma_kit.core.io import write_toml

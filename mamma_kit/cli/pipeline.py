@@ -68,6 +68,8 @@ def init_cmd(
     people: Optional[int] = typer.Option(None, "--people", min=1, help="How many people the videos show (helps "
                                                                        "the builtin tracker separate people who touch)."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing capture.toml."),
+    synced: bool = typer.Option(False, "--synced", help="The cameras share one clock (genlock, a synchronised lab "
+                                                        "rig): sync writes identical clocks, no audio needed."),
     calibration: Optional[Path] = typer.Option(None, "--calibration", help="An existing calibration (any format "
                                                "`calib convert` reads, e.g. a Qualisys .qca.txt), written as "
                                                "WORKSPACE/calibration.toml instead of board videos."),
@@ -83,6 +85,6 @@ def init_cmd(
     g = video_groups(list(ctx.args))
     res = init_workspace(workspace, g["videos"], g["board_videos"] or None, board,
                          [n.strip() for n in names.split(",")] if names else None, copy=copy, backend=backend,
-                         force=force, people=people, calibration=calibration)
+                         force=force, people=people, calibration=calibration, synced=synced)
     if json_out:
         emit_json(res)

@@ -14,8 +14,13 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 @app.command("sync")
 def sync_cmd(
     targets: List[Path] = typer.Argument(..., help="A capture workspace folder, or two or more videos."),
-    method: Optional[str] = typer.Option(None, "--method", help="auto | clap | ltc | tmcd (default: the preset's, "
-                                                                  "else auto: every method the files allow)."),
+    method: Optional[str] = typer.Option(None, "--method", help="auto | clap | ltc | tmcd | synced | timestamps "
+                                                                  "(default: the preset's, else auto: every method "
+                                                                  "the files allow). synced: the cameras share one "
+                                                                  "clock (genlock); timestamps: see --timestamps."),
+    timestamps: Optional[Path] = typer.Option(None, "--timestamps", help="CSV of every frame's time on the rig's "
+                                                                         "clock (cam_id, frame_time; e.g. Caliscope's "
+                                                                         "timestamps.csv); implies --method timestamps."),
     reference: Optional[str] = typer.Option(None, "--reference", help="Camera whose clock is the reference "
                                                                       "(default: the first)."),
     out: Optional[Path] = typer.Option(None, "--out", help="timing.toml to write (default: WORKSPACE/timing.toml, "
@@ -30,7 +35,8 @@ def sync_cmd(
     """Synchronise cameras: per camera offset (sub-frame), drift (ppm) and confidence.
 
     Clap: onsets + GCC-PHAT around each clap, all camera pairs solved jointly. LTC: timecode
-    decoded on every frame. tmcd: the files' start timecode. Writes timing.toml, a per-frame
+    decoded on every frame. tmcd: the files' start timecode. synced: cameras on one clock.
+    timestamps: a file of every frame's time. Writes timing.toml, a per-frame
     timeline (timing_timeline.npz) and pictures (report/sync/ in a workspace).
     """
     from mamma_kit.core.errors import UserError
@@ -41,7 +47,7 @@ def sync_cmd(
         from mamma_kit.core.workspace import Workspace
 
         res = run_sync(Workspace(targets[0]), method=method, reference=reference, preset=preset, plots=plots,
-                       force=force, out=out)
+                       force=force, out=out, timestamps=timestamps)
     else:
         videos = {}
         for t in targets:
@@ -52,6 +58,6 @@ def sync_cmd(
                 name, k = f"{t.stem}_{k}", k + 1
             videos[name] = t
         res = sync_files(videos, out or targets[0].parent / "timing.toml", method=method, reference=reference,
-                         preset=preset, plots=plots)
+                         preset=preset, plots=plots, timestamps=timestamps)
     if json_out:
         emit_json(res)

@@ -44,11 +44,11 @@ def _clap_settings(settings: dict) -> tuple[dict, object]:
 
 
 def sync_files(videos: dict[str, Path], out_path: Path, *, method: str | None = None, reference: str | None = None,
-               preset: str | None = None, plots: bool = True) -> dict:
+               preset: str | None = None, plots: bool = True, timestamps: Path | None = None) -> dict:
     """Synchronise video files (no workspace): timing.toml at ``out_path``."""
     from mamma_kit.timing.sync import load_settings
 
-    settings, cp = _clap_settings(load_settings(preset, {}))
+    settings, cp = _clap_settings(load_settings(preset, {"timestamps": str(timestamps)} if timestamps else {}))
     if cp is not None:
         log.warn("clap_positions need a workspace with calibration.toml: sound travel is not corrected")
     hasher = FileHasher(None)
@@ -58,7 +58,7 @@ def sync_files(videos: dict[str, Path], out_path: Path, *, method: str | None = 
 
 
 def run_sync(ws, *, method: str | None = None, reference: str | None = None, preset: str | None = None,
-             plots: bool = True, force: bool = False, out: Path | None = None) -> dict:
+             plots: bool = True, force: bool = False, out: Path | None = None, timestamps: Path | None = None) -> dict:
     """The workspace stage: every camera's clock model -> ws.timing (timing_timeline.npz beside
     it). ``out``: write another timing file instead (e.g. one method's result to compare), with
     no caching and its plots in <out stem>_plots/."""
@@ -66,9 +66,14 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
 
     cap = ws.load_capture()
     videos = {n: e.video for n, e in cap.cameras.items()}
-    settings, cp = _clap_settings(load_settings(preset, cap.stage_settings("sync")))
+    over = dict(cap.stage_settings("sync"))
+    if timestamps is not None:
+        over["timestamps"] = str(Path(timestamps).resolve())
+    elif over.get("timestamps"):
+        over["timestamps"] = str(ws.resolve(over["timestamps"], "timestamps file"))
+    settings, cp = _clap_settings(load_settings(preset, over))
     mic_positions = None
-    inputs = list(videos.values())
+    inputs = list(videos.values()) + ([Path(settings["timestamps"])] if settings.get("timestamps") else [])
     if ws.calibration.is_file():
         # microphones at the calibrated camera centres: sound travel is corrected (with the
         # clap positions when given, else estimated with the clocks)

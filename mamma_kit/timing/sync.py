@@ -32,7 +32,7 @@ from mamma_kit.timing.fit import relative_clock
 from mamma_kit.timing.ltc import LtcClock, find_ltc_channel, looks_like_ltc, ltc_clock
 from mamma_kit.timing.tmcd import TmcdClock, tmcd_clock
 
-METHODS = ("auto", "clap", "ltc", "tmcd")
+METHODS = ("auto", "clap", "ltc", "tmcd", "synced", "timestamps")
 PRESET_DIR = Path(__file__).resolve().parents[2] / "sync"
 
 DEFAULTS: dict = {
@@ -40,6 +40,8 @@ DEFAULTS: dict = {
     "clap": {},
     "ltc": {"fps": 0.0, "min_fraction": 0.5},
     "check": {"agreement_tolerance_ms": 5.0, "max_travel_ms": 30.0, "estimated_travel_ms": 10.0},
+    # a CSV of every frame's time on the rig's clock (method "timestamps"; auto uses it when given)
+    "timestamps": "",
 }
 
 
@@ -153,7 +155,13 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
     if reference not in videos:
         raise UserError(f"reference camera '{reference}' is not among {', '.join(names)}",
                         "pass one of those names to --reference")
+    if method == "auto" and st.get("timestamps"):
+        method = "timestamps"
+    if method == "timestamps" and not st.get("timestamps"):
+        raise UserError("--method timestamps needs the file of frame times", "pass --timestamps FILE")
     media = load_media(videos, need_audio=method in ("auto", "clap", "ltc"))
+    if method in ("synced", "timestamps"):
+        return _given(media, method, reference, st)
     warnings: list[str] = []
     by_method: dict[str, dict[str, ClockModel]] = {}
     failures: dict[str, UserError] = {}
@@ -265,6 +273,30 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
         diag["not_used"] = not_used
     return SyncResult(clocks, reference, chosen, diag, cam_diag, warnings, by_method, clap_res, ltc_res, tmcd_res,
                       {n: m.timestamps for n, m in media.items()})
+
+
+def _given(media: Mapping[str, CameraMedia], method: str, reference: str, st: Mapping) -> SyncResult:
+    """The clocks the rig already knows: one shared clock, or a file of every frame's time."""
+    from mamma_kit.timing.given import synced_clocks, timestamp_clocks
+
+    stamps = {n: m.timestamps for n, m in media.items()}
+    warnings: list[str] = []
+    if method == "synced":
+        clocks, cam_diag, warnings = synced_clocks(stamps)
+    else:
+        clocks, cam_diag = timestamp_clocks(stamps, Path(st["timestamps"]), reference)
+    for w in warnings:
+        log.warn(w)
+    diag = {"methods_tried": [method], "methods_ok": [method], "chosen": method}
+    if method == "timestamps":
+        diag["timestamps_file"] = str(st["timestamps"])
+    if warnings:
+        diag["warnings"] = warnings
+    for n, c in clocks.items():
+        cam_diag[n]["offset_ms"] = round(c.offset * 1e3, 6)
+        cam_diag[n]["drift_ppm"] = round(c.rate_ppm, 4)
+    return SyncResult(clocks, reference, method, diag, cam_diag, warnings, {method: clocks},
+                      frame_times=dict(stamps))
 
 
 def _rel(cam: ClockModel, ref: ClockModel, source: str, confidence: float) -> ClockModel:
