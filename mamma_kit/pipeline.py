@@ -251,7 +251,7 @@ def _place(src: Path, dst: Path, copy: bool) -> str:
 
 def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path] | None = None,
                    board: str | None = None, names: list[str] | None = None, copy: bool = False,
-                   backend: str = "builtin", force: bool = False, people: int | None = None,
+                   backend: str = "pose", force: bool = False, people: int | None = None,
                    calibration: str | Path | None = None, synced: bool = False) -> dict:
     """A capture workspace for a user's own videos: they are hard-linked (or copied) into
     WORKSPACE/videos and WORKSPACE/board, so that capture.toml holds only paths inside the

@@ -64,9 +64,12 @@ def init_cmd(
                                                               "TOML file) the board videos show."),
     names: Optional[str] = typer.Option(None, "--names", help="Comma-separated camera names (default: file stems)."),
     copy: bool = typer.Option(False, "--copy", help="Copy the videos (default: hard links where possible)."),
-    backend: str = typer.Option("builtin", "--backend", help="Mask backend written to [settings.track]."),
-    people: Optional[int] = typer.Option(None, "--people", min=1, help="How many people the videos show (helps "
-                                                                       "the builtin tracker separate people who touch)."),
+    backend: str = typer.Option("pose", "--backend", help="Mask backend written to [settings.track]: pose (BlazePose, "
+                                                          "the best measured on real and synthetic footage), builtin "
+                                                          "(background model; needs static cameras and a clean "
+                                                          "plate), sam2 or gt."),
+    people: Optional[int] = typer.Option(None, "--people", min=1, help="How many people the capture is about "
+                                                                       "(the trackers keep that many and drop bystanders)."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing capture.toml."),
     synced: bool = typer.Option(False, "--synced", help="The cameras share one clock (genlock, a synchronised lab "
                                                         "rig): sync writes identical clocks, no audio needed."),
