@@ -164,3 +164,18 @@ def test_an_altered_model_file_stops_the_command_with_one_line(tmp_path, cli, mo
     (models / runtime.LANDMARKER).unlink()
     res = cli("track", str(tmp_path / "ws"), "--backend", "pose")
     assert res.code == 2 and "keypoint model file missing" in res.err
+
+
+def test_motion_sync_with_people_standing_still_is_one_clear_line(real_ws):
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.errors import UserError
+    from mamma_kit.timing.motion import motion_clocks
+
+    rig, _ = read_calibration(real_ws.calibration)
+    kts = {c: KeypointTracks.load(real_ws.keypoints_file(c)) for c in CAMS}
+    for kt in kts.values():  # every frame shows the first frame's pose: nothing moves
+        kt.xy[:] = kt.xy[:1]
+        kt.valid[:] = kt.valid[:1]
+        kt.visibility[:] = kt.visibility[:1]
+    with pytest.raises(UserError, match="too little shared motion"):
+        motion_clocks(kts, rig, "cam01")

@@ -14,10 +14,12 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 @app.command("sync")
 def sync_cmd(
     targets: List[Path] = typer.Argument(..., help="A capture workspace folder, or two or more videos."),
-    method: Optional[str] = typer.Option(None, "--method", help="auto | clap | ltc | tmcd | synced | timestamps "
-                                                                  "(default: the preset's, else auto: every method "
-                                                                  "the files allow). synced: the cameras share one "
-                                                                  "clock (genlock); timestamps: see --timestamps."),
+    method: Optional[str] = typer.Option(None, "--method", help="auto | clap | ltc | tmcd | synced | timestamps | "
+                                                                  "motion (default: the preset's, else auto: every "
+                                                                  "method the files allow). synced: the cameras share "
+                                                                  "one clock (genlock); timestamps: see --timestamps; "
+                                                                  "motion: from the people's keypoints and the "
+                                                                  "calibration (workspace, after track + keypoints)."),
     timestamps: Optional[Path] = typer.Option(None, "--timestamps", help="CSV of every frame's time on the rig's "
                                                                          "clock (cam_id, frame_time; e.g. Caliscope's "
                                                                          "timestamps.csv); implies --method timestamps."),

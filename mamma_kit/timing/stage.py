@@ -15,14 +15,14 @@ from mamma_kit.core.manifest import FileHasher, StageManifest, producer
 
 
 def _sync(videos: dict[str, Path], out_path: Path, plot_dir: Path | None, method: str | None, reference: str | None,
-          settings: dict, clap_positions, mic_positions, hashes: dict, command: str) -> dict:
+          settings: dict, clap_positions, mic_positions, hashes: dict, command: str, motion=None) -> dict:
     from mamma_kit.core.timingfile import write_timing
     from mamma_kit.timing.plots import plot_sync
     from mamma_kit.timing.sync import sync_videos
     from mamma_kit.timing.timeline import write_timeline
 
     chosen = method or settings.get("method", "auto")
-    res = sync_videos(videos, chosen, reference, settings, clap_positions, mic_positions)
+    res = sync_videos(videos, chosen, reference, settings, clap_positions, mic_positions, motion)
     write_timing(out_path, res.clocks, res.reference, res.method, diagnostics=res.diagnostics,
                  camera_diagnostics=res.camera_diagnostics, producer=producer(command, hashes))
     timeline_path = write_timeline(out_path.with_name(f"{out_path.stem}_timeline.npz"), res.clocks, res.frame_times,
@@ -57,6 +57,22 @@ def sync_files(videos: dict[str, Path], out_path: Path, *, method: str | None = 
                  {n: hasher(p) for n, p in videos.items()}, "sync " + " ".join(str(p) for p in videos.values()))
 
 
+def _motion_inputs(ws, cams: list[str]):
+    """(keypoints per camera, rig) for motion sync, or a UserError saying what to run first."""
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.errors import UserError
+    from mamma_kit.core.tracks import KeypointTracks
+
+    if not ws.calibration.is_file():
+        raise UserError("motion sync needs the rig's calibration.toml", "calibrate first (or `init --calibration`)")
+    missing = [c for c in cams if not ws.keypoints_file(c).is_file()]
+    if missing:
+        raise UserError(f"motion sync needs keypoints of the people in every view ({', '.join(missing)} have none)",
+                        "run `mamma-kit track WORKSPACE` and `mamma-kit keypoints WORKSPACE` first")
+    rig, _ = read_calibration(ws.calibration)
+    return {c: KeypointTracks.load(ws.keypoints_file(c)) for c in cams}, rig
+
+
 def run_sync(ws, *, method: str | None = None, reference: str | None = None, preset: str | None = None,
              plots: bool = True, force: bool = False, out: Path | None = None, timestamps: Path | None = None) -> dict:
     """The workspace stage: every camera's clock model -> ws.timing (timing_timeline.npz beside
@@ -85,6 +101,10 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
             mic_positions = None
         else:
             inputs.append(ws.calibration)
+    motion = None
+    if (method or settings.get("method")) == "motion":
+        motion = _motion_inputs(ws, list(videos))
+        inputs += [ws.keypoints_file(c) for c in videos]
     if cp is not None and mic_positions is None:
         log.warn("clap_positions given but no calibration.toml with every camera: sound travel is not corrected")
         cp = None
@@ -92,7 +112,8 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
         out = Path(out)
         hasher = FileHasher(None)
         res = _sync(videos, out, out.parent / f"{out.stem}_plots" if plots else None, method, reference, settings, cp,
-                    mic_positions, {ws.relative(p): hasher(p) for p in inputs}, f"sync {ws.root.name} --out {out.name}")
+                    mic_positions, {ws.relative(p): hasher(p) for p in inputs}, f"sync {ws.root.name} --out {out.name}",
+                    motion)
         return {"stage": "sync", "skipped": False, "reason": "--out", **res}
     key = {"method": method, "reference": reference, "preset": preset, "settings": settings, "clap_positions": cp,
            "plots": plots}
@@ -112,7 +133,7 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
     t0 = time.perf_counter()
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
     out = _sync(videos, ws.timing, ws.report_dir / "sync" if plots else None, method, reference, settings, cp,
-                mic_positions, hashes, f"sync {ws.root.name}")
+                mic_positions, hashes, f"sync {ws.root.name}", motion)
     secs = time.perf_counter() - t0
     manifest.record(inputs, key, [ws.timing, timeline], {"method": out.get("method")}, secs)
     return {"stage": "sync", "skipped": False, "reason": state.reason, "seconds": round(secs, 2), **out}

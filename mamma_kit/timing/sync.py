@@ -32,7 +32,7 @@ from mamma_kit.timing.fit import relative_clock
 from mamma_kit.timing.ltc import LtcClock, find_ltc_channel, looks_like_ltc, ltc_clock
 from mamma_kit.timing.tmcd import TmcdClock, tmcd_clock
 
-METHODS = ("auto", "clap", "ltc", "tmcd", "synced", "timestamps")
+METHODS = ("auto", "clap", "ltc", "tmcd", "synced", "timestamps", "motion")
 PRESET_DIR = Path(__file__).resolve().parents[2] / "sync"
 
 DEFAULTS: dict = {
@@ -144,7 +144,8 @@ def _check_audible(m: CameraMedia) -> None:
 # ---------------------------------------------------------------------------------------
 def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str | None = None,
                 settings: Mapping | None = None, clap_positions=None,
-                mic_positions: Mapping[str, np.ndarray] | None = None) -> SyncResult:
+                mic_positions: Mapping[str, np.ndarray] | None = None, motion=None) -> SyncResult:
+    """``motion``: (keypoints per camera, rig) for --method motion (the workspace stage loads them)."""
     st = load_settings(None, settings)
     if method not in METHODS:
         raise UserError(f"unknown sync method '{method}'", f"use one of {', '.join(METHODS)}")
@@ -160,8 +161,8 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
     if method == "timestamps" and not st.get("timestamps"):
         raise UserError("--method timestamps needs the file of frame times", "pass --timestamps FILE")
     media = load_media(videos, need_audio=method in ("auto", "clap", "ltc"))
-    if method in ("synced", "timestamps"):
-        return _given(media, method, reference, st)
+    if method in ("synced", "timestamps", "motion"):
+        return _given(media, method, reference, st, motion)
     warnings: list[str] = []
     by_method: dict[str, dict[str, ClockModel]] = {}
     failures: dict[str, UserError] = {}
@@ -275,14 +276,22 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
                       {n: m.timestamps for n, m in media.items()})
 
 
-def _given(media: Mapping[str, CameraMedia], method: str, reference: str, st: Mapping) -> SyncResult:
-    """The clocks the rig already knows: one shared clock, or a file of every frame's time."""
+def _given(media: Mapping[str, CameraMedia], method: str, reference: str, st: Mapping, motion=None) -> SyncResult:
+    """Clocks without audio: one shared clock, a file of every frame's time, or the people's motion."""
     from mamma_kit.timing.given import synced_clocks, timestamp_clocks
 
     stamps = {n: m.timestamps for n, m in media.items()}
     warnings: list[str] = []
     if method == "synced":
         clocks, cam_diag, warnings = synced_clocks(stamps)
+    elif method == "motion":
+        from mamma_kit.timing.motion import motion_clocks
+
+        if motion is None:
+            raise UserError("--method motion needs a workspace with keypoints/ and calibration.toml",
+                            "run `mamma-kit sync WORKSPACE --method motion` after `track` and `keypoints`")
+        kts, rig = motion
+        clocks, cam_diag, warnings = motion_clocks(kts, rig, reference, float(st.get("motion_max_lag_s", 2.0)))
     else:
         clocks, cam_diag = timestamp_clocks(stamps, Path(st["timestamps"]), reference)
     for w in warnings:

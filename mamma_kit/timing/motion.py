@@ -1,0 +1,299 @@
+"""Motion sync: camera clocks from the people's movement, for videos without a usable clap or LTC.
+
+Inputs: BlazePose keypoints per camera (keypoints/<cam>.npz, on each camera's own frame times) and
+the calibrated rig. For each camera against the reference:
+1. coarse offset: every whole-frame lag up to ``max_lag_s`` (and the lag where the two views'
+   motion signals correlate best: every tracked person's limb-joint speed in box heights per
+   second, summed), with the two views' tracks paired at that lag by their epipolar distance
+   (Hungarian); the lag pairing the most people at the lowest residual wins (on short takes the
+   speed correlation alone was off by hundreds of ms on the real recording);
+2. the tracks paired at the coarse offset;
+3. sub-frame offset: the offset that minimises the paired keypoints' robust symmetric epipolar
+   distance (in box heights), the other view's keypoints interpolated at each frame's own
+   timestamp (variable frame rate); a scan at a tenth of a frame, then a bounded 1-D minimisation;
+4. drift: on takes long enough, step 3 in windows, and a line through the windows' offsets.
+Confidence per camera: how much deeper the minimum is than the residual 0.1 s away.
+"""
+
+from __future__ import annotations
+
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment, minimize_scalar
+
+from mamma_kit.core.camera import Camera, Rig
+from mamma_kit.core.clock import ClockModel
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.tracks import KeypointTracks
+
+# the limb joints (shoulders, elbows, wrists, hips, knees, ankles) that carry the motion
+LIMBS = np.r_[11:17, 23:29]
+MIN_VISIBILITY = 0.5
+# an epipolar distance is capped at this many box heights: a wrong point cannot outweigh the rest
+CAP = 0.15
+# a camera pair needs at least this many shared (frame, joint) observations
+MIN_OBSERVATIONS = 200
+# tracks are paired across views only below this median epipolar distance (box heights)
+MAX_PAIR_DISTANCE = 0.06
+# the minimum must be at least this much deeper than CONTRAST_S away, else the motion does not
+# determine the offset (one frame at 60 fps moves the residual by only 1-4 % on the real recording:
+# keypoint noise and calibration error dominate it)
+MIN_CONTRAST = 0.05
+CONTRAST_S = 0.1
+# drift is estimated on takes of at least this length, in windows of this length
+DRIFT_MIN_TAKE_S = 40.0
+# in the joint solve, a camera pair whose offset disagrees with the others by more than this many
+# frames is dropped
+LOOP_TOLERANCE_FRAMES = 1.0
+DRIFT_WINDOW_S = 15.0
+
+
+@contextmanager
+def warnings_off():
+    """NaN-aware reductions over frames where a track is absent warn on every all-NaN slice."""
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
+
+
+@dataclass
+class View:
+    """One camera's keypoints, undistorted, with per-(frame, track) box heights."""
+
+    cam: Camera
+    times: np.ndarray  # (T,) own clock
+    xy: np.ndarray  # (T, K, J, 2) undistorted px, NaN where not seen
+    height: np.ndarray  # (T, K) px
+
+    @classmethod
+    def of(cls, cam: Camera, kt: KeypointTracks) -> "View":
+        xy = kt.xy[:, :, LIMBS].astype(np.float64)
+        seen = kt.valid[..., None] & (kt.visibility[:, :, LIMBS] > MIN_VISIBILITY)
+        und = cam.undistort_pixels(np.nan_to_num(xy).reshape(-1, 2)).reshape(xy.shape)
+        und = np.where(seen[..., None], und, np.nan)
+        allxy = np.where(kt.valid[..., None, None], kt.xy, np.nan)
+        with np.errstate(invalid="ignore"):
+            h = np.nanmax(allxy[..., 1], axis=2) - np.nanmin(allxy[..., 1], axis=2)
+        return cls(cam, np.asarray(kt.frame_times, np.float64), und, np.where(kt.valid, h, np.nan))
+
+    def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Keypoints and heights linearly interpolated at own-clock times t (N,): (N, K, J, 2), (N, K)."""
+        i1 = np.clip(np.searchsorted(self.times, t), 1, len(self.times) - 1)
+        i0 = i1 - 1
+        w = ((t - self.times[i0]) / np.maximum(self.times[i1] - self.times[i0], 1e-9))
+        inside = (t >= self.times[0]) & (t <= self.times[-1])
+        xy = (1 - w)[:, None, None, None] * self.xy[i0] + w[:, None, None, None] * self.xy[i1]
+        h = (1 - w)[:, None] * self.height[i0] + w[:, None] * self.height[i1]
+        xy[~inside] = np.nan
+        return xy, h
+
+    def motion(self) -> np.ndarray:
+        """(T,) summed limb-joint speed in box heights per second (0 where nothing is tracked)."""
+        dt = np.diff(self.times)[:, None, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.linalg.norm(np.diff(self.xy, axis=0), axis=-1) / dt / self.height[1:, :, None]  # (T-1, K, J)
+            per_track = np.nanmedian(np.where(np.isfinite(v), v, np.nan), axis=2) if v.shape[1] else \
+                np.zeros((len(dt), 0))
+        s = np.nansum(per_track, axis=1)
+        return np.r_[s[:1], s] if len(s) else np.zeros(len(self.times))
+
+
+def _epipolar(F: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+    """Symmetric epipolar distance (px) of undistorted points xa (..., 2) in a and xb in b, F: a -> b."""
+    ha = np.concatenate([xa, np.ones_like(xa[..., :1])], -1)
+    hb = np.concatenate([xb, np.ones_like(xb[..., :1])], -1)
+    lb = ha @ F.T  # lines in b
+    la = hb @ F  # lines in a
+    num = np.abs((hb * lb).sum(-1))
+    return 0.5 * (num / np.hypot(lb[..., 0], lb[..., 1]) + num / np.hypot(la[..., 0], la[..., 1]))
+
+
+def coarse_offset(a: View, b: View, max_lag_s: float) -> float:
+    """Offset o (t_ref = t_b + o) maximising the correlation of the two motion signals."""
+    dt = 0.5 * min(np.median(np.diff(a.times)), np.median(np.diff(b.times)))
+    grid_a = np.arange(a.times[0], a.times[-1], dt)
+    sa = np.interp(grid_a, a.times, a.motion())
+    sb_t = b.motion()
+    # lags up to a third of the shorter take: the signals must overlap over most of it to compare
+    take = min(a.times[-1] - a.times[0], b.times[-1] - b.times[0])
+    max_lag_s = min(max_lag_s, take / 3)
+    lags = np.arange(-max_lag_s, max_lag_s + dt / 2, dt)
+    best, best_o = -np.inf, 0.0
+    za = (sa - sa.mean()) / (sa.std() + 1e-12)
+    for o in lags:
+        tb = grid_a - o
+        ok = (tb >= b.times[0]) & (tb <= b.times[-1])
+        if ok.sum() < 0.6 * len(grid_a):
+            continue
+        sb = np.interp(tb[ok], b.times, sb_t)
+        zb = (sb - sb.mean()) / (sb.std() + 1e-12)
+        r = float(np.mean(za[ok] * zb))
+        if r > best:
+            best, best_o = r, float(o)
+    return best_o
+
+
+def pair_tracks(a: View, b: View, F: np.ndarray, offset: float) -> list[tuple[int, int]]:
+    """Tracks of a and b that show the same person: Hungarian on the mean capped epipolar distance."""
+    xb, hb = b.at(a.times - offset)
+    Ka, Kb = a.xy.shape[1], b.xy.shape[1]
+    cost = np.full((Ka, Kb), np.inf)
+    for i in range(Ka):
+        for j in range(Kb):
+            d = _epipolar(F, a.xy[:, i], xb[:, j]) / np.sqrt(a.height[:, i, None] * hb[:, j, None])
+            d = d[np.isfinite(d)]
+            if len(d) >= 20:
+                cost[i, j] = np.median(d)
+    if not np.isfinite(cost).any():
+        return []
+    r, c = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e3))
+    return [(int(i), int(j)) for i, j in zip(r, c) if cost[i, j] < MAX_PAIR_DISTANCE]
+
+
+def residual(a: View, b: View, F: np.ndarray, pairs, offset: float, frames: np.ndarray | None = None
+             ) -> tuple[float, int]:
+    """Mean capped symmetric epipolar distance (box heights) of the paired tracks at ``offset``."""
+    idx = np.arange(len(a.times)) if frames is None else frames
+    xb, hb = b.at(a.times[idx] - offset)
+    ds = []
+    for i, j in pairs:
+        d = _epipolar(F, a.xy[idx, i], xb[:, j]) / np.sqrt(a.height[idx, i, None] * hb[:, j, None])
+        ds.append(d[np.isfinite(d)])
+    d = np.concatenate(ds) if ds else np.zeros(0)
+    return (float(np.minimum(d, CAP).mean()) if len(d) else np.inf), int(len(d))
+
+
+def fine_offset(a: View, b: View, F, pairs, start: float, frames=None) -> tuple[float, dict]:
+    """Sub-frame offset near ``start`` minimising the paired epipolar residual."""
+    period = float(np.median(np.diff(b.times)))
+    scan = start + np.arange(-2.0, 2.0 + 1e-9, 0.1) * period
+    vals = np.array([residual(a, b, F, pairs, o, frames)[0] for o in scan])
+    k = int(np.argmin(vals))
+    lo, hi = scan[max(k - 1, 0)], scan[min(k + 1, len(scan) - 1)]
+    res = minimize_scalar(lambda o: residual(a, b, F, pairs, o, frames)[0], bounds=(lo, hi), method="bounded",
+                          options={"xatol": 1e-5 * period})
+    o = float(res.x)
+    best, n = residual(a, b, F, pairs, o, frames)
+    far = min(residual(a, b, F, pairs, o - CONTRAST_S, frames)[0], residual(a, b, F, pairs, o + CONTRAST_S, frames)[0])
+    contrast = float((far - best) / far) if np.isfinite(far) and far > 0 else 0.0
+    return o, {"residual": best, "observations": n, "contrast": contrast, "scan_min": float(scan[k])}
+
+
+def scan_offset(a: View, b: View, F: np.ndarray, max_lag_s: float, speed_lag: float) -> tuple[float, list]:
+    """Coarse offset: every whole-frame lag up to ``max_lag_s`` (and the speed correlation's
+    ``speed_lag``), tracks paired at each, the lowest paired epipolar residual wins."""
+    period = float(np.median(np.diff(b.times)))
+    take = min(a.times[-1] - a.times[0], b.times[-1] - b.times[0])
+    lim = min(max_lag_s, take / 3)
+    cands = np.r_[np.arange(-lim, lim + 1e-9, period), speed_lag]
+    best = (np.inf, 0.0, [])
+    for o in cands:
+        pairs = pair_tracks(a, b, F, o)
+        r, n = residual(a, b, F, pairs, o) if pairs else (np.inf, 0)
+        # a lag that pairs fewer people explains less: compare residuals only at the most pairs
+        key = (-len(pairs), r)
+        if best[2] == [] or key < (-len(best[2]), best[0]):
+            best = (r, float(o), pairs)
+    return best[1], best[2]
+
+
+def pair_offset(a: View, b: View, max_lag_s: float) -> tuple[float, float, dict]:
+    """One camera pair: (offset of b relative to a, confidence, diagnostics); confidence 0 where the
+    pair shares no person or too little motion."""
+    F = a.cam.fundamental_to(b.cam)
+    coarse, pairs = scan_offset(a, b, F, max_lag_s, coarse_offset(a, b, max_lag_s))
+    if not pairs:
+        return coarse, 0.0, {"track_pairs": [], "observations": 0, "contrast": 0.0}
+    o, info = fine_offset(a, b, F, pairs, coarse)
+    ok = info["observations"] >= MIN_OBSERVATIONS and info["contrast"] >= MIN_CONTRAST
+    conf = float(np.clip(info["contrast"] / 0.5, 0.0, 1.0)) * min(1.0, len(pairs) / max(a.xy.shape[1], 1)) if ok else 0.0
+    return o, conf, {"coarse_offset_ms": round(coarse * 1e3, 3), "track_pairs": pairs,
+                     "residual_box_heights": round(info["residual"], 5), "observations": info["observations"],
+                     "contrast": round(info["contrast"], 4)}
+
+
+def _linked(rows: list[np.ndarray], names: list[str], reference: str) -> set[str]:
+    """Cameras tied to the reference through the pairs in ``rows`` (each row: -1 at a, +1 at b)."""
+    linked, grew = {reference}, True
+    while grew:
+        grew = False
+        for r in rows:
+            a, b = names[int(np.flatnonzero(r < 0)[0])], names[int(np.flatnonzero(r > 0)[0])]
+            if (a in linked) != (b in linked):
+                linked |= {a, b}
+                grew = True
+    return linked
+
+
+def _connected(rows, names, reference) -> bool:
+    return len(_linked(rows, names, reference)) == len(names)
+
+
+def motion_clocks(kts: dict[str, KeypointTracks], rig: Rig, reference: str, max_lag_s: float = 2.0
+                  ) -> tuple[dict[str, ClockModel], dict, list[str]]:
+    """Every camera's clock relative to ``reference`` from the people's motion (module docstring):
+    every camera pair's offset, then all cameras' offsets jointly by weighted least squares over the
+    pairs (o_b - o_a = o_ab), so a camera that sees the reference's people badly (occlusion) is tied
+    in through the others. Drift is not estimated on takes shorter than DRIFT_MIN_TAKE_S.
+    -> (clocks, per-camera diagnostics, warnings)."""
+    with warnings_off():
+        return _motion_clocks(kts, rig, reference, max_lag_s)
+
+
+def _motion_clocks(kts, rig, reference, max_lag_s):
+    names = list(kts)
+    views = {n: View.of(rig[n], kt) for n, kt in kts.items()}
+    rows, rhs, wts, pair_diag = [], [], [], {}
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            o, conf, d = pair_offset(views[a], views[b], max_lag_s)
+            pair_diag[(a, b)] = {"offset_ms": round(o * 1e3, 3), "confidence": round(conf, 3), **d}
+            if conf > 0:
+                r = np.zeros(len(names))
+                r[names.index(a)], r[names.index(b)] = -1.0, 1.0
+                rows.append(r)
+                rhs.append(o)
+                wts.append(conf)
+    # every camera must be tied to the reference through pairs that saw the same people move
+    period = min(float(np.median(np.diff(v.times))) for v in views.values())
+    lost = [n for n in names if n not in _linked(rows, names, reference)]
+    if lost:
+        why = "; ".join(f"{a}-{b}: {d['observations']} shared observations, contrast {d['contrast']:.0%}"
+                        for (a, b), d in pair_diag.items() if lost[0] in (a, b))
+        raise UserError(f"motion sync: too little shared motion to tie {', '.join(lost)} to the other cameras ({why})",
+                        "film the people moving in view of every camera (a jump, arms swung), or sync by clap, LTC "
+                        "or timecode")
+    ref_i = names.index(reference)
+    cols = [k for k in range(len(names)) if k != ref_i]
+    used = list(range(len(rows)))
+    while True:
+        A, b = np.array([rows[i] for i in used]), np.array([rhs[i] for i in used])
+        w = np.sqrt(np.array([wts[i] for i in used]))[:, None]
+        x, *_ = np.linalg.lstsq(A[:, cols] * w, b * w[:, 0], rcond=None)
+        offsets = np.zeros(len(names))
+        offsets[cols] = x
+        resid = A @ offsets - b
+        worst = int(np.argmax(np.abs(resid)))
+        # a pair that disagrees with the others by more than a frame is dropped (one view's keypoints
+        # can follow the wrong person through an occlusion), while the rest still tie every camera in
+        trial = [u for k, u in enumerate(used) if k != worst]
+        if abs(resid[worst]) <= LOOP_TOLERANCE_FRAMES * period or len(trial) < len(names) - 1 or \
+                not _connected([rows[i] for i in trial], names, reference):
+            break
+        used = trial
+    rows, wts = [rows[i] for i in used], [wts[i] for i in used]
+    clocks, diag = {}, {}
+    for k, n in enumerate(names):
+        mine = [i for i, r in enumerate(rows) if r[k] != 0]
+        conf = 1.0 if n == reference else float(np.clip(sum(wts[i] for i in mine), 0.0, 1.0))
+        clocks[n] = ClockModel(float(offsets[k]), 0.0, "motion", conf)
+        diag[n] = {"pairs": {f"{a}-{b}": d for (a, b), d in pair_diag.items() if n in (a, b)},
+                   "loop_residual_ms": round(float(np.sqrt(np.mean(resid[mine] ** 2))) * 1e3, 3) if mine else None}
+    notes = []
+    take = min(v.times[-1] - v.times[0] for v in views.values())
+    if take >= DRIFT_MIN_TAKE_S:
+        notes.append("motion sync estimates offsets only; drift over the take is not modelled yet")
+    return clocks, diag, notes
