@@ -70,7 +70,8 @@ class CaptureConfig:
 def _people(v) -> int | None:
     if v is None:
         return None
-    if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+    # 0 is a count: a calibration-only workspace (synth recipes/board-only.toml writes it)
+    if not isinstance(v, int) or isinstance(v, bool) or v < 0:
         raise UserError(f"capture.toml [capture] people = {v!r} is not a count", "write e.g. people = 2, or remove it")
     return v
 
