@@ -13,9 +13,10 @@ from mamma_kit.calibration.formats import (FORMATS, SUPPORTED_MODELS, convert, i
 from mamma_kit.core.camera import Camera, Rig, rodrigues
 from mamma_kit.core.errors import UserError
 
-PAIRS = list(itertools.permutations(FORMATS, 2))
+PAIRS = list(itertools.permutations([f for f in FORMATS if "radtan" in SUPPORTED_MODELS[f]], 2))
 FILENAMES = {"mamma-kit": "calibration.toml", "mamma-yaml": "calib.yaml", "easymocap": "emc/intri.yml",
-             "anipose": "anipose.toml", "caliscope": "camera_array.toml", "opencv-json": "calib.json"}
+             "anipose": "anipose.toml", "caliscope": "camera_array.toml", "opencv-json": "calib.json",
+             "vicon-xcp": "calib.xcp"}
 
 
 @st.composite
@@ -33,6 +34,10 @@ def rigs(draw, model="radtan"):
             d = np.r_[rng.uniform(-0.3, 0.3, 2), rng.uniform(-0.005, 0.005, 2), rng.uniform(-0.1, 0.1)]
         elif model == "rational":
             d = np.r_[rng.uniform(-0.3, 0.3, 2), rng.uniform(-0.005, 0.005, 2), rng.uniform(-0.1, 0.1, 4)]
+        elif model == "vicon_radial":  # [pp_x, pp_y, rad_1, rad_2, rad_3], radial in pixels
+            r2 = (0.5 * max(w, h)) ** 2
+            d = np.r_[K[0, 2] + rng.uniform(-10, 10), K[1, 2] + rng.uniform(-10, 10),
+                      rng.uniform(-0.1, 0.1) / r2, rng.uniform(-0.02, 0.02) / r2 ** 2, rng.uniform(-0.01, 0.01) / r2 ** 3]
         else:
             d = rng.uniform(-0.05, 0.05, 4)
         R = rodrigues(rng.uniform(-np.pi, np.pi, 3) * rng.uniform(0, 1))
@@ -96,6 +101,17 @@ def test_roundtrip_fisheye_where_supported(tmp_path_factory, rig, data):
     assert rig_projection_difference(rig, back, _points_in_front(rig, np.random.default_rng(2))) < 1e-6
 
 
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(rig=rigs("vicon_radial"), data=st.data())
+def test_roundtrip_vicon_radial_where_supported(tmp_path_factory, rig, data):
+    fmts = [f for f in FORMATS if "vicon_radial" in SUPPORTED_MODELS[f]]
+    assert set(fmts) == {"mamma-kit", "mamma-yaml", "vicon-xcp"}
+    a, b = data.draw(st.sampled_from(list(itertools.permutations(fmts, 2))))
+    back = _roundtrip(rig, a, b, tmp_path_factory.mktemp("rv"))
+    assert [c.model for c in back] == ["vicon_radial"] * len(rig)
+    assert rig_projection_difference(rig, back, _points_in_front(rig, np.random.default_rng(3))) < 1e-6
+
+
 def test_unsupported_model_is_refused(tmp_path):
     rig = Rig([Camera("c", (640, 480), np.eye(3) * [500, 500, 1] + [[0, 0, 320], [0, 0, 240], [0, 0, 0]],
                       np.zeros(4), "fisheye")])
@@ -106,7 +122,10 @@ def test_unsupported_model_is_refused(tmp_path):
 def test_format_inference(tmp_path, ring_rig):
     for fmt, name in FILENAMES.items():
         p = tmp_path / fmt / name
-        write_rig(ring_rig, p, fmt)
+        rig = ring_rig
+        if "radtan" not in SUPPORTED_MODELS[fmt]:  # .xcp holds Vicon's lens only
+            rig = Rig([c.copy(model="vicon_radial", dist=[c.K[0, 2], c.K[1, 2], 0, 0, 0]) for c in ring_rig])
+        write_rig(rig, p, fmt)
         assert infer_format(p) == fmt
     assert infer_format(tmp_path / "x" / "camera_array.toml", for_writing=True) == "caliscope"
 

@@ -5,8 +5,10 @@ format                  file(s) and conventions
 ======================  =====================================================================
 ``mamma-kit``           calibration.toml (core/calibfile.py): world->camera rvec, t in metres
 ``mamma-yaml``          official MAMMA YAML: ``cameras: {name: {intrinsics: [fx, fy, cx, cy],
-                        distortion_model: radtan|equidistant, distortion_coeffs, resolution,
-                        translation, rotation_quaternion [w, x, y, z]}}``; pose camera->world
+                        distortion_model: radtan|equidistant|vicon_radial_2, distortion_coeffs,
+                        resolution, translation, rotation_quaternion [w, x, y, z]}}``; pose
+                        camera->world; vicon_radial_2 coefficients [pp_x, pp_y, rad_1, rad_2,
+                        rad_3] in pixels (core.camera's ``vicon_radial``)
 ``easymocap``           intri.yml + extri.yml (OpenCV FileStorage): K_<n>, dist_<n>, R_<n>
                         (rvec), Rot_<n>, T_<n>, plus H_<n>/W_<n>; world->camera
 ``anipose``             aniposelib TOML: [cam_i] name, size, matrix, distortions, rotation
@@ -25,10 +27,19 @@ format                  file(s) and conventions
                         and tangentalDistortion1-2 (OpenCV k1-k3, p1, p2), transform r11..r33
                         (camera->world rotation stored by columns) and x, y, z (camera
                         position, mm). Qualisys camera axes are OpenCV's turned by pi about x.
+``vicon-xcp``           Vicon .xcp (XML): ``<Cameras><Camera DEVICEID SENSOR_SIZE="w h"
+                        PIXEL_ASPECT_RATIO><KeyFrames><KeyFrame FOCAL_LENGTH PRINCIPAL_POINT
+                        ORIENTATION="x y z w" POSITION="x y z" VICON_RADIAL2="Vicon3Parameter
+                        pp_x pp_y rad_1 rad_2 rad_3"/>``. fy = FOCAL_LENGTH / PIXEL_ASPECT_RATIO;
+                        the quaternion (scalar last) is the world->camera rotation and POSITION
+                        the camera centre in mm (as the public readers of the format use them:
+                        t = -R C). Cameras are named by DEVICEID (USERID if it has none).
 ======================  =====================================================================
 
-Every converter maps exactly (up to float round-off) what both formats can hold; a lens
-model a format cannot hold is refused with a message rather than silently changed.
+Every converter maps exactly (up to float round-off) what both formats can hold. A lens
+model a format cannot hold is refused with a message rather than silently changed, except
+Vicon's radial model, which is written to OpenCV formats as the closest radtan lens (fitted
+over the image) with a warning that says how far its projections move.
 """
 
 from __future__ import annotations
@@ -49,17 +60,18 @@ from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import atomic_path, atomic_write_text, to_json, write_toml
 
 # formats read and written (every pair round-trips); READ_FORMATS adds those only read
-FORMATS = ("mamma-kit", "mamma-yaml", "easymocap", "anipose", "caliscope", "opencv-json")
+FORMATS = ("mamma-kit", "mamma-yaml", "easymocap", "anipose", "caliscope", "opencv-json", "vicon-xcp")
 READ_ONLY_FORMATS = ("qualisys",)
 READ_FORMATS = FORMATS + READ_ONLY_FORMATS
 # lens models each format can hold
 SUPPORTED_MODELS = {
-    "mamma-kit": {"radtan", "rational", "fisheye"},
+    "mamma-kit": {"radtan", "rational", "fisheye", "vicon_radial"},
     "opencv-json": {"radtan", "rational", "fisheye"},
     "anipose": {"radtan", "rational", "fisheye"},
     "easymocap": {"radtan", "rational"},
-    "mamma-yaml": {"radtan", "fisheye"},
+    "mamma-yaml": {"radtan", "fisheye", "vicon_radial"},
     "caliscope": {"radtan"},
+    "vicon-xcp": {"vicon_radial"},
 }
 
 
@@ -88,10 +100,31 @@ def _dist5(cam: Camera) -> list[float]:
 def _check_models(rig: Rig, fmt: str) -> None:
     for c in rig:
         if c.model not in SUPPORTED_MODELS[fmt]:
+            holders = [f for f in FORMATS if c.model in SUPPORTED_MODELS[f]]
             raise UserError(
                 f"the {fmt} format cannot hold the {c.model} lens model of camera {c.name}",
-                "convert to mamma-kit, anipose or opencv-json instead",
+                f"convert to {' or '.join(holders)} instead",
             )
+
+
+def _lossy(rig: Rig, fmt: str) -> Rig:
+    """The rig a format can hold: vicon_radial cameras become their closest radtan lens
+    when ``fmt`` cannot hold vicon_radial but holds radtan, with a warning of what moves."""
+    from mamma_kit.calibration.lens import radtan_equivalent
+    from mamma_kit.core import log
+
+    out = []
+    for c in rig:
+        if c.model == "vicon_radial" and "vicon_radial" not in SUPPORTED_MODELS[fmt] \
+                and "radtan" in SUPPORTED_MODELS[fmt]:
+            c2, worst = radtan_equivalent(c)
+            log.warn(f"{fmt} cannot hold the vicon_radial lens of camera {c.name}: written as the closest radtan "
+                     f"lens (k1, k2, p1, p2, k3 fitted over the image); its projections move by up to {worst:.3f} px "
+                     f"(lost: Vicon's distortion centre ({c.dist[0]:.1f}, {c.dist[1]:.1f}) px and its exact radial "
+                     f"terms)")
+            c = c2
+        out.append(c)
+    return Rig(out)
 
 
 def _need(d: dict, key: str, cam: str, path: Path):
@@ -134,10 +167,14 @@ def read_mamma_yaml(path: Path) -> Rig:
         fx, fy, cx, cy = _num(_need(d, "intrinsics", name, path), (4,), name, "intrinsics", path)
         dm = str(d.get("distortion_model", "radtan"))
         dist = _num(d.get("distortion_coeffs", []), None, name, "distortion_coeffs", path)
-        model = {"radtan": "radtan", "equidistant": "fisheye", "none": "radtan"}.get(dm)
+        model = {"radtan": "radtan", "equidistant": "fisheye", "none": "radtan",
+                 "vicon_radial_2": "vicon_radial"}.get(dm)
         if model is None:
             raise UserError(f"{path.name}: camera {name}: distortion model '{dm}' is not supported",
-                            "use radtan or equidistant")
+                            "use radtan, equidistant or vicon_radial_2")
+        if model == "vicon_radial" and len(dist) != 5:
+            raise UserError(f"{path.name}: camera {name}: vicon_radial_2 takes 5 coefficients [pp_x, pp_y, rad_1, "
+                            f"rad_2, rad_3], got {len(dist)}", "fix distortion_coeffs")
         w, h = _num(_need(d, "resolution", name, path), (2,), name, "resolution", path)
         C = _num(_need(d, "translation", name, path), (3,), name, "translation", path)
         R_wc = _R_from_quat_wxyz(_num(_need(d, "rotation_quaternion", name, path), (4,), name,
@@ -156,9 +193,9 @@ def write_mamma_yaml(rig: Rig, path: Path) -> None:
             raise UserError(f"camera {c.name} has a skewed K, which mamma-yaml cannot hold", "use opencv-json")
         cams[c.name] = {
             "camera_model": "pinhole",
-            "distortion_model": "equidistant" if c.model == "fisheye" else "radtan",
+            "distortion_model": {"fisheye": "equidistant", "vicon_radial": "vicon_radial_2"}.get(c.model, "radtan"),
             "intrinsics": [float(c.K[0, 0]), float(c.K[1, 1]), float(c.K[0, 2]), float(c.K[1, 2])],
-            "distortion_coeffs": _dist5(c),
+            "distortion_coeffs": [float(v) for v in c.dist] if c.model == "vicon_radial" else _dist5(c),
             "resolution": [int(c.size[0]), int(c.size[1])],
             "translation": [float(v) for v in c.center],
             "rotation_quaternion": [float(v) for v in _quat_wxyz_from_R(c.R.T)],
@@ -344,6 +381,7 @@ def read_opencv_json(path: Path) -> Rig:
 
 
 def write_opencv_json(rig: Rig, path: Path) -> None:
+    _check_models(rig, "opencv-json")
     cams = {c.name: {"image_size": [int(c.size[0]), int(c.size[1])], "camera_matrix": c.K.tolist(),
                      "distortion_model": c.model, "dist_coeffs": c.dist.tolist(),
                      "rvec": c.rvec.tolist(), "tvec": c.t.tolist()} for c in rig}
@@ -426,6 +464,97 @@ def read_qualisys(path: Path) -> Rig:
     return Rig(out)
 
 
+# ---- Vicon .xcp ------------------------------------------------------------------------
+XCP_MODEL_NAME = "Vicon3Parameter"
+
+
+def _xcp_numbers(el, key: str, n: int | None, cam: str, path: Path) -> np.ndarray:
+    v = el.get(key)
+    if v is None:
+        raise UserError(f"{path.name}: camera {cam} has no {key}", "fix the file or export it from Vicon again")
+    toks = v.split()
+    while toks and not _is_number(toks[0]):  # VICON_RADIAL2 starts with its model's name
+        toks = toks[1:]
+    try:
+        a = np.array([float(t) for t in toks])
+    except ValueError:
+        raise UserError(f"{path.name}: camera {cam}: {key} is not numeric ({v!r})", "fix the file") from None
+    if (n is not None and len(a) != n) or not np.all(np.isfinite(a)):
+        raise UserError(f"{path.name}: camera {cam}: {key} holds {len(a)} numbers ({v!r}), expected {n}",
+                        "fix the file")
+    return a
+
+
+def _is_number(tok: str) -> bool:
+    try:
+        float(tok)
+        return True
+    except ValueError:
+        return False
+
+
+def read_xcp(path: Path) -> Rig:
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise UserError(f"{path.name} is not valid XML ({e})", "is this a Vicon .xcp calibration?") from None
+    cams = root.findall("Camera") if root.tag == "Cameras" else root.findall(".//Cameras/Camera")
+    if not cams:
+        raise UserError(f"{path.name} has no <Cameras><Camera> elements", "is this a Vicon .xcp calibration?")
+    out = []
+    for i, el in enumerate(cams):
+        name = el.get("DEVICEID") or el.get("USERID") or f"cam{i}"
+        kf = el.find("KeyFrames/KeyFrame")
+        if kf is None:
+            raise UserError(f"{path.name}: camera {name} has no <KeyFrames><KeyFrame> (not calibrated)",
+                            "calibrate the cameras in Vicon and export the .xcp again")
+        w, h = _xcp_numbers(el, "SENSOR_SIZE", 2, name, path)
+        aspect = float(el.get("PIXEL_ASPECT_RATIO", "1") or 1)
+        f = _xcp_numbers(kf, "FOCAL_LENGTH", 1, name, path)[0]
+        cx, cy = _xcp_numbers(kf, "PRINCIPAL_POINT", 2, name, path)
+        q = _xcp_numbers(kf, "ORIENTATION", 4, name, path)
+        C = _xcp_numbers(kf, "POSITION", 3, name, path) / 1000.0
+        if kf.get("VICON_RADIAL2") is None:
+            raise UserError(f"{path.name}: camera {name} has no VICON_RADIAL2 lens (an older VICON_RADIAL model?)",
+                            "export the calibration from a Vicon version that writes VICON_RADIAL2")
+        dist = _xcp_numbers(kf, "VICON_RADIAL2", 5, name, path)
+        if f <= 0 or aspect <= 0 or np.linalg.norm(q) < 1e-9:
+            raise UserError(f"{path.name}: camera {name}: focal length {f}, aspect {aspect} or orientation {q} "
+                            "is not valid", "fix the file")
+        from scipy.spatial.transform import Rotation
+
+        R = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()  # scalar last: x y z w
+        K = np.array([[f, 0, cx], [0, f / aspect, cy], [0, 0, 1.0]])
+        meta = {k: el.get(k) for k in ("USERID", "DISPLAY_TYPE", "TYPE") if el.get(k)}
+        out.append(Camera(str(name), (int(w), int(h)), K, dist, "vicon_radial", R, -R @ C, meta=meta))
+    return Rig(out)
+
+
+def write_xcp(rig: Rig, path: Path) -> None:
+    from scipy.spatial.transform import Rotation
+
+    _check_models(rig, "vicon-xcp")
+    root = ET.Element("Cameras", {"VERSION": "1.0", "NUM_CAMERAS": str(len(rig))})
+    for k, c in enumerate(rig):
+        fx, fy = float(c.K[0, 0]), float(c.K[1, 1])
+        if abs(c.K[0, 1]) > 1e-12:
+            raise UserError(f"camera {c.name} has a skewed K, which .xcp cannot hold", "use mamma-kit's format")
+        el = ET.SubElement(root, "Camera", {"DEVICEID": c.name, "USERID": str(c.meta.get("USERID", k + 1)),
+                                            "SENSOR_SIZE": f"{c.size[0]} {c.size[1]}",
+                                            "PIXEL_ASPECT_RATIO": repr(float(fx / fy)), "TYPE": "VIDEO"})
+        kfs = ET.SubElement(el, "KeyFrames")
+        q = Rotation.from_matrix(c.R).as_quat()
+        ET.SubElement(kfs, "KeyFrame", {
+            "FRAME": "0", "FOCAL_LENGTH": repr(fx), "PRINCIPAL_POINT": f"{float(c.K[0, 2])!r} {float(c.K[1, 2])!r}",
+            "ORIENTATION": " ".join(repr(float(v)) for v in q),
+            "POSITION": " ".join(repr(float(v)) for v in c.center * 1000.0),
+            "VICON_RADIAL2": " ".join([XCP_MODEL_NAME] + [repr(float(v)) for v in c.dist]),
+            "WORLD_ERROR": "0"})
+    ET.indent(root)
+    atomic_write_text(path, '<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n'
+                      + ET.tostring(root, encoding="unicode") + "\n")
+
+
 # ---- dispatch -------------------------------------------------------------------------
 def _read_toml_any(path: Path) -> dict:
     try:
@@ -441,6 +570,8 @@ def infer_format(path: str | Path, for_writing: bool = False) -> str:
     name = p.name.lower()
     if name.endswith((".qca.txt", ".qca")):
         return "qualisys"
+    if name.endswith(".xcp"):
+        return "vicon-xcp"
     if name in ("intri.yml", "extri.yml") or (p.is_dir() and (p / "intri.yml").exists()):
         return "easymocap"
     if name == "camera_array.toml":
@@ -478,6 +609,7 @@ READERS: dict[str, Callable[[Path], Rig]] = {
     "caliscope": read_caliscope,
     "opencv-json": read_opencv_json,
     "qualisys": read_qualisys,
+    "vicon-xcp": read_xcp,
 }
 WRITERS: dict[str, Callable[[Rig, Path], None]] = {
     "mamma-kit": lambda r, p: write_calibration(p, r),
@@ -486,6 +618,7 @@ WRITERS: dict[str, Callable[[Rig, Path], None]] = {
     "anipose": write_anipose,
     "caliscope": write_caliscope,
     "opencv-json": write_opencv_json,
+    "vicon-xcp": write_xcp,
 }
 
 
@@ -510,7 +643,7 @@ def read_rig(path: str | Path, fmt: str | None = None) -> Rig:
 def write_rig(rig: Rig, path: str | Path, fmt: str | None = None) -> Path:
     p = Path(path)
     fmt = _check_fmt(fmt or infer_format(p, for_writing=True), for_writing=True)
-    WRITERS[fmt](rig, p)
+    WRITERS[fmt](_lossy(rig, fmt), p)
     return p
 
 

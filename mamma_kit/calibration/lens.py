@@ -8,6 +8,29 @@ import numpy as np
 from mamma_kit.core.camera import Camera, distort_normalized
 
 
+def radtan_equivalent(cam: Camera, grid: int = 40) -> tuple[Camera, float]:
+    """The radtan camera (same K and pose; k1, k2, p1, p2, k3 fitted by least squares) whose
+    projections come closest to ``cam``'s over its image, and the largest pixel difference
+    on a grid over the image. For formats that cannot hold ``cam``'s lens model."""
+    from scipy.optimize import least_squares
+
+    w, h = cam.size
+    nx, ny = grid, max(2, round(grid * h / w))
+    xy = np.stack(np.meshgrid(np.linspace(0, w - 1, nx), np.linspace(0, h - 1, ny)), -1).reshape(-1, 2)
+    xn = cam.pixels_to_lens(xy)
+    ok = np.isfinite(xn).all(1)
+    xn, xy = xn[ok], xy[ok]
+    out = cam.copy(model="radtan", dist=np.zeros(5))
+
+    def residual(d):
+        return (out.normalized_to_pixels(distort_normalized(xn, "radtan", d)) - xy).ravel()
+
+    fit = least_squares(residual, np.zeros(5), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    out = out.copy(dist=fit.x)
+    worst = float(np.abs(residual(fit.x)).reshape(-1, 2).max(1).max()) if len(xy) else 0.0
+    return out, worst
+
+
 def undistort_exact(cam: Camera, xy_n2: np.ndarray) -> np.ndarray:
     """Distorted pixels -> undistorted normalised coordinates, to ~1e-12.
 

@@ -12,11 +12,11 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.core import log
 
 calib_app = typer.Typer(help="Calibration files: convert between mamma-kit, MAMMA YAML, EasyMocap, anipose, "
-                             "Caliscope and OpenCV JSON; read Qualisys .qca.txt.", no_args_is_help=True)
+                             "Caliscope, OpenCV JSON and Vicon .xcp; read Qualisys .qca.txt.", no_args_is_help=True)
 app.add_typer(calib_app, name="calib")
 
-FMT_HELP = ("mamma-kit | mamma-yaml | easymocap | anipose | caliscope | opencv-json | qualisys (read only; "
-            ".qca.txt) (inferred from the name if omitted)")
+FMT_HELP = ("mamma-kit | mamma-yaml | easymocap | anipose | caliscope | opencv-json | vicon-xcp | qualisys (read "
+            "only; .qca.txt) (inferred from the name if omitted)")
 
 
 @calib_app.command("convert")
@@ -31,7 +31,8 @@ def convert_cmd(
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
-    """Convert a calibration file between formats; projections are preserved exactly."""
+    """Convert a calibration file between formats; projections are preserved exactly where both formats hold the
+    lens model (a Vicon lens written to an OpenCV format says how far its projections move)."""
     from mamma_kit.calibration.formats import convert
 
     setup(quiet, json_out)

@@ -6,6 +6,11 @@ z forward; pixel (0, 0) is the centre of the top-left pixel. Lens models follow 
 - ``radtan``   : k1, k2, p1, p2[, k3]                  (cv2.projectPoints, 4 or 5 coeffs)
 - ``rational`` : k1, k2, p1, p2, k3, k4, k5, k6[, s1..s4] (8 or 12 coeffs)
 - ``fisheye``  : k1, k2, k3, k4                         (cv2.fisheye, equidistant)
+- ``vicon_radial`` : pp_x, pp_y, rad_1, rad_2, rad_3 (pixels; Vicon's VICON_RADIAL2, the
+  MAMMA release's ``vicon_radial_2``): a pinhole-projected pixel u (through K) is recorded
+  at pp + (u - pp)(1 + rad_1 d^2 + rad_2 d^4 + rad_3 d^6), d^2 = |u - pp|^2 in pixels. It
+  acts on pixels, not on normalised coordinates, so only Camera's methods (project,
+  unproject, undistort_pixels) apply it; :func:`distort_normalized` refuses it.
 
 Arrays are named by what they hold and their shape: ``X_n3`` world points,
 ``xy_n2`` pixels, ``K_33`` intrinsics.
@@ -20,7 +25,8 @@ import numpy as np
 
 from mamma_kit.core.errors import UserError
 
-LENS_MODELS = {"radtan": (0, 4, 5), "rational": (8, 12), "fisheye": (4,)}
+LENS_MODELS = {"radtan": (0, 4, 5), "rational": (8, 12), "fisheye": (4,), "vicon_radial": (5,)}
+PIXEL_LENS_MODELS = ("vicon_radial",)  # lens models defined on pixels (need K), not normalised coordinates
 
 
 def rodrigues(rvec_3: np.ndarray) -> np.ndarray:
@@ -54,6 +60,8 @@ def nearest_rotation(M_33: np.ndarray) -> np.ndarray:
 
 def distort_normalized(xy_n2: np.ndarray, model: str, dist: np.ndarray) -> np.ndarray:
     """Apply a lens model to normalised image coordinates (x/z, y/z)."""
+    if model in PIXEL_LENS_MODELS:
+        raise ValueError(f"the {model} lens model acts on pixels: use Camera.project / Camera.unproject")
     xy = np.asarray(xy_n2, float)
     x, y = xy[..., 0], xy[..., 1]
     d = np.zeros(12)
@@ -106,6 +114,39 @@ def undistort_normalized(xyd_n2: np.ndarray, model: str, dist: np.ndarray, iters
         step = np.where(norm > 0.5, step * (0.5 / np.maximum(norm, 1e-12)), step)
         xy = xy - step
     return xy
+
+
+def vicon_distort_pixels(u_n2: np.ndarray, coeffs_5: np.ndarray) -> np.ndarray:
+    """Pinhole pixels (..., 2) -> recorded pixels under Vicon's radial model
+    [pp_x, pp_y, rad_1, rad_2, rad_3]."""
+    c = np.asarray(coeffs_5, float)
+    d = np.asarray(u_n2, float) - c[:2]
+    r2 = np.sum(d * d, -1, keepdims=True)
+    return c[:2] + d * (1 + r2 * (c[2] + r2 * (c[3] + r2 * c[4])))
+
+
+def vicon_undistort_pixels(v_n2: np.ndarray, coeffs_5: np.ndarray, iters: int = 50) -> np.ndarray:
+    """Recorded pixels (..., 2) -> pinhole pixels: the radius r with r (1 + rad_1 r^2 +
+    rad_2 r^4 + rad_3 r^6) = |v - pp| by Newton's method (to ~1e-12 px), along v - pp;
+    NaN where no radius on the lens's monotonic part gives |v - pp|."""
+    c = np.asarray(coeffs_5, float)
+    d = np.asarray(v_n2, float) - c[:2]
+    rv = np.linalg.norm(d, axis=-1)
+    k1, k2, k3 = c[2:]
+    r = rv.copy()
+    for _ in range(iters):
+        r2 = r * r
+        f = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) - rv
+        if np.nanmax(np.abs(f), initial=0.0) < 1e-12:
+            break
+        df = 1 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2))
+        r = r - f / np.where(np.abs(df) < 1e-12, 1e-12, df)
+    r2 = r * r
+    # beyond the lens's fold (where the radial map stops growing) no pinhole pixel maps here
+    bad = np.abs(r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) - rv) > 1e-6
+    bad |= 1 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2)) <= 0
+    scale = np.where(rv > 1e-15, r / np.where(rv > 1e-15, rv, 1.0), 1.0)
+    return np.where(bad[..., None], np.nan, c[:2] + d * scale[..., None])
 
 
 @dataclass
@@ -201,7 +242,19 @@ class Camera:
         with np.errstate(divide="ignore", invalid="ignore"):
             xy = Xc[..., :2] / z
         xy = np.where(z > 1e-9, xy, np.nan)
-        return self.normalized_to_pixels(distort_normalized(xy, self.model, self.dist))
+        return self.lens_to_pixels(xy)
+
+    def lens_to_pixels(self, xy_n2: np.ndarray) -> np.ndarray:
+        """Undistorted normalised coordinates (x/z, y/z) -> recorded (distorted) pixels."""
+        if self.model == "vicon_radial":
+            return vicon_distort_pixels(self.normalized_to_pixels(xy_n2), self.dist)
+        return self.normalized_to_pixels(distort_normalized(xy_n2, self.model, self.dist))
+
+    def pixels_to_lens(self, xy_n2: np.ndarray) -> np.ndarray:
+        """Recorded pixels -> undistorted normalised coordinates (inverse of lens_to_pixels)."""
+        if self.model == "vicon_radial":
+            return self.pixels_to_normalized(vicon_undistort_pixels(xy_n2, self.dist))
+        return undistort_normalized(self.pixels_to_normalized(xy_n2), self.model, self.dist)
 
     def normalized_to_pixels(self, xy_n2: np.ndarray) -> np.ndarray:
         K = self.K
@@ -220,15 +273,14 @@ class Camera:
 
     def undistort_pixels(self, xy_n2: np.ndarray) -> np.ndarray:
         """Distorted pixels -> pixels of the ideal pinhole camera with the same K."""
-        xn = undistort_normalized(self.pixels_to_normalized(xy_n2), self.model, self.dist)
-        return self.normalized_to_pixels(xn)
+        return self.normalized_to_pixels(self.pixels_to_lens(xy_n2))
 
     def unproject(self, xy_n2: np.ndarray, depth: np.ndarray | float | None = None) -> np.ndarray:
         """Pixels (..., 2) -> camera-frame rays with z = 1 (..., 3), or points at ``depth``.
 
         With ``depth`` the result is in world coordinates (z-depth along the optical axis).
         """
-        xn = undistort_normalized(self.pixels_to_normalized(xy_n2), self.model, self.dist)
+        xn = self.pixels_to_lens(xy_n2)
         rays_c = np.concatenate([xn, np.ones_like(xn[..., :1])], -1)
         if depth is None:
             return rays_c
@@ -255,7 +307,15 @@ class Camera:
         """The same camera for an image resized by (sx, sy) (pixel-centre convention)."""
         sy = sx if sy is None else sy
         S = np.array([[sx, 0, 0.5 * sx - 0.5], [0, sy, 0.5 * sy - 0.5], [0, 0, 1]])
-        return self.copy(K=S @ self.K, size=(round(self.size[0] * sx), round(self.size[1] * sy)))
+        dist = self.dist
+        if self.model == "vicon_radial":
+            if abs(sx - sy) > 1e-12 * max(sx, sy):
+                raise UserError(f"camera {self.name}: the vicon_radial lens model cannot be resized by "
+                                f"{sx:g} x {sy:g} (its distortion is radial in pixels)",
+                                "resize both image axes by the same factor")
+            # pp moves with the pixel grid; d^2 grows by sx^2
+            dist = np.r_[S[:2, :2] @ self.dist[:2] + S[:2, 2], self.dist[2:] / sx ** np.array([2, 4, 6])]
+        return self.copy(K=S @ self.K, dist=dist, size=(round(self.size[0] * sx), round(self.size[1] * sy)))
 
 
 class Rig:
