@@ -1,9 +1,22 @@
 """LTC (SMPTE 12M linear timecode) decoder, every frame tied to its audio sample.
 
 Steps (all vectorised over the take):
-1. Transitions: a hysteresis comparator (thresholds at +-30 % of the signal's level) finds
-   each level change; its time is the zero crossing just before, interpolated linearly
-   between samples (sub-sample).
+1. Transitions, from either form a channel may carry:
+   - square (a line input): a hysteresis comparator (thresholds at +-30 % of the signal's
+     level) finds each level change; its time is the zero crossing just before, interpolated
+     linearly between samples (sub-sample).
+   - differentiated (an AC-coupled or high-passed input): each transition arrives as a short
+     spike, often clipped, decaying back to the mid level; biphase mark flips the level at
+     every transition, so the spikes alternate in sign and the same comparator (on the spike
+     peaks) finds them. Each spike is read through a first-order high-pass model: the pole
+     (decay per sample) is measured on the spikes' unclipped tails, clipped samples are
+     restored from the tail that follows them, and the filter is inverted over the spike
+     (d[n] = y[n] - a y[n-1], the steps of the square that went in); the transition time is
+     the centroid of those steps, as the square form's zero crossing is of its ramp.
+   Which form: a square holds its level until the next transition, a spike has decayed by
+   then (``_level_kept``); the other form is tried too when the judged one decodes fewer
+   than 90 % of the frames its transitions span, and the one with more frames kept.
+   (A square is centred on the midpoint of its two levels, a high-passed signal on its mean.)
 2. Adaptive bit period: intervals between transitions are one bit (a 0) or half a bit (half
    of a 1). A first period comes from the interval distribution, then a running local
    period (moving average of the bit lengths the intervals imply) reclassifies them, so
@@ -49,6 +62,7 @@ class LtcFrames:
     sr: int
     n_transitions: int
     span: tuple[float, float] = (0.0, 0.0)  # samples of the first and last transition: where LTC is present
+    form: str = "square"       # "square" or "differentiated" (high-passed input: spikes)
 
     @property
     def n(self) -> int:
@@ -65,13 +79,51 @@ def word_rate(fps: float) -> Fraction:
     return r / 2 if r > 31 else r
 
 
-def _transitions(x: np.ndarray, hyst: float) -> np.ndarray:
-    """Sub-sample times (in samples) of the level changes of a two-level signal."""
-    s = np.where(x > hyst, 1, np.where(x < -hyst, -1, 0)).astype(np.int8)
+# square form: comparator thresholds as a fraction of the level (90th percentile of |x|):
+# well above noise, well below the level a square holds between transitions
+SQUARE_HYST = 0.3
+# differentiated form: comparator thresholds as a fraction of each sign's extreme (99.9th
+# percentile): a spike whose step falls across two samples still peaks above 0.55 of the
+# highest (first-order high-pass, time constant down to a few tenths of a sample)
+SPIKE_HYST = 0.35
+# clipped samples (their true value unknown): those near the top cluster's level c (median of
+# the samples above 90 % of the extreme), within 4 robust sigmas of that cluster (a clipped
+# plateau's spread is the noise), at least 1 % and at most 10 % of c. An unclipped peak
+# flagged by mistake is restored from its tail, which the model gets right too.
+CLIP_TOP = 0.9
+CLIP_SIGMAS = 4.0
+CLIP_MARGIN = (0.01, 0.1)
+# tail samples used to measure the pole: above the noise, below the clip level
+TAIL_RANGE = (0.15, 0.9)
+# tail samples fitted (least squares along the decay) to restore a clipped run: averages
+# the noise the restoration multiplies by a^-k
+TAIL_FIT = 4
+# a step part of at least 10 % of the clip level in the sample before a clipped run means
+# the transition began there (so the run's first sample completes it): such spikes give the
+# step height
+PARTIAL_MIN = 0.1
+# the square form holds its level until the next transition (ratio of the level just before
+# it to the level just after the last one, near 1); a high-passed spike has decayed by then
+LEVEL_KEPT_MIN = 0.7
+# the judged form is kept if it decodes 90 % of the frames its transitions span; else the
+# other form is tried too and the one with more frames kept
+FORM_KEEP = 0.9
+
+
+def _state_changes(x: np.ndarray, hi: float, lo: float) -> tuple[np.ndarray, np.ndarray]:
+    """Hysteresis comparator on ``x`` (N,): the (K,) indices where the state flips (the first
+    sample above ``hi`` after being below ``lo``, or the reverse) and the (K,) new states +-1."""
+    s = np.where(x > hi, 1, np.where(x < lo, -1, 0)).astype(np.int8)
     idx = np.where(s != 0, np.arange(len(s)), 0)
     np.maximum.accumulate(idx, out=idx)
     state = s[idx]
     ch = np.flatnonzero((state[1:] != state[:-1]) & (state[:-1] != 0)) + 1
+    return ch, state[ch]
+
+
+def _transitions(x: np.ndarray, hyst: float) -> np.ndarray:
+    """Sub-sample times (in samples) of the level changes of a two-level signal."""
+    ch, _ = _state_changes(x, hyst, -hyst)
     pos = x >= 0
     zc = np.flatnonzero(pos[1:] != pos[:-1])
     k = np.searchsorted(zc, ch) - 1
@@ -79,6 +131,122 @@ def _transitions(x: np.ndarray, hyst: float) -> np.ndarray:
     z = zc[k[ok]]
     x0, x1 = x[z], x[z + 1]
     return z + x0 / (x0 - x1)
+
+
+def _extremes(x: np.ndarray) -> tuple[float, float]:
+    """The positive and negative extremes of ``x`` (both >= 0): robust to a few outliers."""
+    return float(np.percentile(x, 99.9)), float(-np.percentile(x, 0.1))
+
+
+def _level_kept(x: np.ndarray) -> float:
+    """How well ``x`` (N,) holds its level between the comparator's transitions: median over
+    transitions of (level 2 samples before the next transition) / (level 2 samples after this
+    one), in the transition's sign. About 1 for a square, well below 1 for high-passed spikes
+    that decay back to the mean; 0 when there are too few transitions to say."""
+    top, bot = _extremes(x)
+    if min(top, bot) < 1e-4:
+        return 0.0
+    ch, st = _state_changes(x, SPIKE_HYST * top, -SPIKE_HYST * bot)
+    if len(ch) < 20:
+        return 0.0
+    after = np.minimum(ch[:-1] + 2, len(x) - 1)
+    before = np.maximum(ch[1:] - 2, after)
+    ok = (ch[1:] - ch[:-1]) >= 6  # room for both samples away from the two transitions
+    if ok.sum() < 10:
+        return 0.0
+    num = st[:-1][ok] * x[before[ok]]
+    den = st[:-1][ok] * x[after[ok]]
+    return float(np.median(num / np.maximum(den, 1e-12)))
+
+
+def _spike_transitions(x: np.ndarray) -> np.ndarray:
+    """Sub-sample transition times (in samples) of LTC that went through a first-order
+    high-pass (an AC-coupled input): ``x`` (N,) holds alternating-sign spikes, maybe clipped.
+
+    Model: y[n] = a (y[n-1] + u[n] - u[n-1]) for the square u; so d[n] = y[n] - a y[n-1] is
+    the square's step, spread over the two samples the transition falls across (in
+    proportion to where it falls), and after a spike y decays by a per sample. With the pole
+    a from the unclipped tails, a clipped run is restored from the tail after it
+    (y = y_tail a^-k); if the run's first sample is where the step began, its share of the
+    step follows from the step height S (the same for every transition: the square has two
+    levels). The transition time is the centroid of d over the spike's three samples, minus
+    half a sample (d[n] sits between samples n-1 and n) -- exact under the model, like the
+    square form's zero crossing of a sampled ramp."""
+    n = len(x)
+    top, bot = _extremes(x)
+    if min(top, bot) < 1e-4 or n < 16:
+        return np.zeros(0)
+    ch, sg = _state_changes(x, SPIKE_HYST * top, -SPIKE_HYST * bot)
+    keep = (ch >= 3) & (ch < n - 4)
+    ch, sg = ch[keep], sg[keep].astype(np.float64)
+    if len(ch) < 20:
+        return np.zeros(0)
+    ext = np.where(x >= 0, top, bot)  # (N,) each sample's extreme, by its sign
+    clip_lv = []
+    for side, e in ((x, top), (-x, bot)):
+        hi = side[side >= CLIP_TOP * e]
+        c = float(np.median(hi)) if len(hi) else e
+        sig = 1.4826 * float(np.median(np.abs(hi - c))) if len(hi) else 0.0
+        clip_lv.append(c - float(np.clip(CLIP_SIGMAS * sig, CLIP_MARGIN[0] * c, CLIP_MARGIN[1] * c)))
+    clipped = np.where(x >= 0, x >= clip_lv[0], -x >= clip_lv[1])
+    # a decaying spike cannot dip below the clip and come back: a one-sample hole in a
+    # clipped run is noise on the plateau
+    clipped[1:-1] |= clipped[:-2] & clipped[2:] & (np.sign(x[:-2]) == np.sign(x[2:]))
+    # the pole: ratio of successive tail samples (same sign, decaying, neither clipped)
+    v0, v1 = np.abs(x[:-1]), x[1:] * np.sign(x[:-1])
+    e0 = ext[:-1]
+    tail = ((v0 > TAIL_RANGE[0] * e0) & (v0 < TAIL_RANGE[1] * e0) & (v1 > 0.2 * TAIL_RANGE[0] * e0)
+            & (v1 < v0) & ~clipped[:-1] & ~clipped[1:])
+    a = float(np.clip(np.median(v1[tail] / v0[tail]), 0.0, 0.99)) if tail.sum() >= 20 else 0.0
+    # next unclipped sample at or after each index (a run's end)
+    nxt = np.where(~clipped, np.arange(n), n - 1)
+    nxt = np.minimum.accumulate(nxt[::-1])[::-1]
+    # each spike's three samples b, b+1, b+2: b+1 is the first clipped sample if the
+    # comparator's sample or the one after is clipped, else the comparator's sample
+    c0, c1 = clipped[ch], clipped[np.minimum(ch + 1, n - 1)]
+    is_clip = c0 | c1
+    m0 = np.where(c0, ch, np.where(c1, ch + 1, ch))
+    b = m0 - 1
+    v = sg[:, None] * x[b[:, None] + np.arange(-1, 3)[None, :]]  # (K, 4): samples b-1 .. b+2
+    # the previous spike still clipped at b-1 (a short interval): its true value there is
+    # beyond the clip level, and at least what its decay into b implies (b its pure tail, no
+    # step in b); a b short of that holds the start of this step
+    prev_clip = clipped[b - 1]
+    if a > 0:
+        v[prev_clip, 0] = np.minimum(v[prev_clip, 0], v[prev_clip, 1] / a)
+    d = v[:, 1:] - a * v[:, :-1]                               # (K, 3): steps at b, b+1, b+2
+    # a clipped run's true values: back along the decay from the tail after it (its first
+    # unclipped sample m and up to TAIL_FIT - 1 more before the next spike, least squares)
+    m = nxt[np.minimum(m0 + 1, n - 1)]
+    j = np.arange(TAIL_FIT)
+    idx = np.minimum(m[:, None] + j[None, :], n - 1)
+    use = (idx < np.r_[ch[1:], n][:, None] - 1) & ~clipped[idx]
+    use[:, 0] = True
+    aj = a ** j.astype(float)
+    vm = (use * sg[:, None] * x[idx]) @ aj / (use @ (aj * aj))  # fitted tail value at m
+    y_m0 = vm * a ** (m0 - m).astype(float) if a > 0 else vm
+    y_m1 = np.where(m > m0 + 1, vm * a ** (m0 + 1 - m).astype(float) if a > 0 else vm, v[:, 3])
+    # the step height, from unclipped spikes and from clipped ones whose step began at b
+    began = is_clip & (d[:, 0] > PARTIAL_MIN * ext[m0])
+    s_unclip = d.sum(1)
+    s_began = d[:, 0] + y_m0 - a * v[:, 1]
+    cand = np.r_[s_unclip[~is_clip], s_began[began]]
+    if len(cand) >= 10:
+        S = float(np.median(cand))
+    elif is_clip.any():  # every step began inside a clipped sample: a lower bound at best
+        S = float(np.percentile(s_began[is_clip], 10))
+    else:
+        S = float(np.median(s_unclip))
+    # clipped spikes: the share of the step at b+1 and b+2 from the restored sample b+2
+    R = np.maximum(S - d[:, 0], 0.0)
+    Q = y_m1 - a * a * v[:, 1]
+    d1 = np.clip((R - Q) / (1.0 - a), 0.0, R)
+    d_clip = np.stack([np.maximum(d[:, 0], 0.0), d1, R - d1], 1)
+    w = np.where(is_clip[:, None], d_clip, np.maximum(d, 0.0))
+    tot = w.sum(1)
+    ok = tot > 0
+    t = b[ok] + (w[ok] @ np.arange(3.0)) / tot[ok] - 0.5
+    return t[np.r_[True, np.diff(t) > 0]] if len(t) else t
 
 
 def _bit_period(d: np.ndarray, lo: float, hi: float) -> float:
@@ -94,16 +262,60 @@ def _bit_period(d: np.ndarray, lo: float, hi: float) -> float:
     return best
 
 
-def decode_ltc(x: np.ndarray, sr: int, fps_hint: float | None = None) -> LtcFrames:
-    """Decode every LTC frame in a mono signal (see the module docstring)."""
+def _empty(sr: int, form: str = "square") -> LtcFrames:
+    return LtcFrames(np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.uint32), np.zeros(0, bool),
+                     np.zeros(0, bool), 0, 0.0, sr, 0, form=form)
+
+
+def _centred(x: np.ndarray) -> np.ndarray:
+    """``x`` minus the midpoint of its two levels (5th and 95th percentiles): a square's
+    transitions cross it half-way whatever share of the take each level holds (the median of
+    a two-level signal is one of the levels when they are not held equally long)."""
+    lo, hi = np.percentile(x, [5, 95])
+    return x - 0.5 * (lo + hi)
+
+
+def ltc_form(x: np.ndarray) -> str:
+    """Which form a centred channel ``x`` (N,) carries: "square" (holds its level between
+    transitions) or "differentiated" (spikes that decay back to the mean)."""
+    return "square" if _level_kept(x) >= LEVEL_KEPT_MIN else "differentiated"
+
+
+def decode_ltc(x: np.ndarray, sr: int, fps_hint: float | None = None, form: str | None = None) -> LtcFrames:
+    """Decode every LTC frame in a mono signal ``x`` (N,) (see the module docstring).
+
+    form: "square", "differentiated" or None (judged from the signal; the other form is
+    tried too when the judged one misses frames, see the module docstring)."""
     x = np.asarray(x, np.float64)
-    x = x - np.median(x)
-    amp = float(np.percentile(np.abs(x), 90)) if len(x) else 0.0
-    empty = LtcFrames(np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.uint32), np.zeros(0, bool),
-                      np.zeros(0, bool), 0, 0.0, sr, 0)
-    if amp < 1e-4:
-        return empty
-    tr = _transitions(x, 0.3 * amp)
+    if len(x) == 0:
+        return _empty(sr)
+    xs = _centred(x)
+    if float(np.percentile(np.abs(xs), 99.9)) < 1e-4:
+        return _empty(sr)
+    forms = [form] if form else [ltc_form(xs)]
+    if not form:
+        forms.append("differentiated" if forms[0] == "square" else "square")
+    best = _empty(sr, forms[0])
+    for f in forms:
+        if f == "square":
+            amp = float(np.percentile(np.abs(xs), 90))
+            tr = _transitions(xs, SQUARE_HYST * amp) if amp >= 1e-4 else np.zeros(0)
+        else:  # a high-passed signal has no DC: its mid level is the mean (neither the median
+            # nor the levels' midpoint are: the decaying tails need not be symmetric)
+            tr = _spike_transitions(x - np.mean(x))
+        fr = _decode_transitions(tr, sr, fps_hint, f)
+        if fr.n > best.n:
+            best = fr
+        # the judged form is kept when it decodes nearly every frame its transitions span
+        span_frames = (fr.span[1] - fr.span[0]) / (80 * fr.bit_period) if fr.n else 0.0
+        if fr.n and fr.n >= FORM_KEEP * span_frames - 2:
+            break
+    return best
+
+
+def _decode_transitions(tr: np.ndarray, sr: int, fps_hint: float | None, form: str) -> LtcFrames:
+    """Steps 2-4 of the module docstring on the (M,) sub-sample transition times ``tr``."""
+    empty = _empty(sr, form)
     if len(tr) < 200:
         return empty
     d = np.diff(tr)
@@ -204,7 +416,7 @@ def decode_ltc(x: np.ndarray, sr: int, fps_hint: float | None = None) -> LtcFram
     order = np.argsort(start[good], kind="stable")
     return LtcFrames(start[good][order], count[good][order].astype(np.int64),
                      ub[good][order].astype(np.uint32), drop[good][order], reverse[good][order], nominal,
-                     bit_period, sr, len(tr), (float(tr[0]), float(tr[-1])))
+                     bit_period, sr, len(tr), (float(tr[0]), float(tr[-1])), form)
 
 
 @dataclass
@@ -276,15 +488,51 @@ def ltc_clock(frames: LtcFrames, start_s: float, duration_s: float, fps: float |
 
 
 def looks_like_ltc(x: np.ndarray) -> bool:
-    """A two-level signal (most samples near +-amplitude), unlike microphone sound."""
-    a = np.abs(x - np.median(x))
+    """LTC in either form, unlike microphone sound: a two-level signal (most samples near
+    +-amplitude), or high-passed LTC (alternating-sign spikes whose intervals are one bit or
+    half a bit, ``_regular_spikes``)."""
+    x = np.asarray(x, np.float64)
+    if len(x) == 0:
+        return False
+    a = np.abs(_centred(x))
     p99 = float(np.percentile(a, 99))
-    return p99 >= 1e-4 and float(np.percentile(a, 30)) >= 0.3 * p99
+    if p99 < 1e-4:
+        return False
+    return float(np.percentile(a, 30)) >= 0.3 * p99 or _regular_spikes(x - np.mean(x))
+
+
+# high-passed LTC: at least this share of the comparator's intervals within +-20 % of the
+# bit period or half of it (noise and speech spread their crossings over all intervals)
+SPIKE_REGULAR_MIN = 0.9
+SPIKE_REGULAR_TOL = 0.2
+SPIKE_KIND_MIN = 0.05
+
+
+def _regular_spikes(x: np.ndarray) -> bool:
+    """Whether the alternating-sign spikes of ``x`` (N,) come at one bit period or half of it,
+    as biphase mark's transitions do (scale-free: the period from the intervals themselves)."""
+    top, bot = _extremes(x)
+    if min(top, bot) < 1e-4:
+        return False
+    ch, _ = _state_changes(x, SPIKE_HYST * top, -SPIKE_HYST * bot)
+    if len(ch) < 200:
+        return False
+    d = np.diff(ch).astype(np.float64)
+    med = float(np.median(d))  # intervals are T/2 or T: the median lies between
+    if med < 2:
+        return False
+    T = _bit_period(d[:: max(1, len(d) // 4000)], 0.95 * med, 2.1 * med)
+    whole = np.abs(d / T - 1) <= SPIKE_REGULAR_TOL
+    half = np.abs(2 * d / T - 1) <= SPIKE_REGULAR_TOL
+    # both kinds present (every LTC word's sync word has 4 zeros and 12 ones): not a tone
+    return (float((whole | half).mean()) >= SPIKE_REGULAR_MIN
+            and min(float(whole.mean()), float(half.mean())) >= SPIKE_KIND_MIN)
 
 
 def find_ltc_channel(samples_nc: np.ndarray, sr: int, fps_hint: float | None = None
                      ) -> tuple[int, LtcFrames] | None:
-    """The channel carrying LTC (the one with most decoded frames), or None."""
+    """The channel of ``samples_nc`` (N, C) carrying LTC, square or high-passed (the one with
+    most decoded frames), or None."""
     best = None
     for c in range(samples_nc.shape[1]):
         x = samples_nc[:, c]
