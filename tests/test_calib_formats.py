@@ -36,8 +36,8 @@ def rigs(draw, model="radtan"):
             d = np.r_[rng.uniform(-0.3, 0.3, 2), rng.uniform(-0.005, 0.005, 2), rng.uniform(-0.1, 0.1, 4)]
         elif model == "vicon_radial":  # [pp_x, pp_y, rad_1, rad_2, rad_3], radial in pixels
             r2 = (0.5 * max(w, h)) ** 2
-            d = np.r_[K[0, 2] + rng.uniform(-10, 10), K[1, 2] + rng.uniform(-10, 10),
-                      rng.uniform(-0.1, 0.1) / r2, rng.uniform(-0.02, 0.02) / r2 ** 2, rng.uniform(-0.01, 0.01) / r2 ** 3]
+            d = np.r_[K[0, 2] + rng.uniform(-10, 10), K[1, 2] + rng.uniform(-10, 10), rng.uniform(-0.1, 0.1) / r2,
+                      rng.uniform(-0.02, 0.02) / r2 ** 2, rng.uniform(-0.01, 0.01) / r2 ** 3]
         else:
             d = rng.uniform(-0.05, 0.05, 4)
         R = rodrigues(rng.uniform(-np.pi, np.pi, 3) * rng.uniform(0, 1))

@@ -12,6 +12,9 @@ A spec file::
     inverted = false         # white markers on black (inverted colours)
     paper = "A1"             # default paper for `mamma-kit board`
 
+Caliscope's charuco.toml (columns, rows, square_size_override_cm, aruco_scale, dictionary,
+inverted) is read as well.
+
 Board coordinates follow OpenCV: origin at the top-left corner of the printed pattern,
 x along the columns, y down the rows, z into the board (a camera looking at the printed
 face sees z pointing away from it). Chessboard corner j sits at
@@ -173,6 +176,31 @@ def spec_from_dict(d: dict, name: str = "board", where: str = "board spec") -> B
     return BoardSpec(**kw)
 
 
+CALISCOPE_UNITS_M = {"inch": 0.0254, "cm": 0.01, "mm": 0.001, "m": 1.0}
+
+
+def spec_from_caliscope(d: dict, name: str = "board", where: str = "charuco.toml") -> BoardSpec:
+    """A Caliscope charuco.toml: columns, rows, board_width/board_height (paper, in ``units``),
+    square_size_override_cm (the measured square), aruco_scale (marker side / square side),
+    dictionary, inverted. Without the override the square is the paper divided by the squares."""
+    try:
+        cols, rows = int(d["columns"]), int(d["rows"])
+        if d.get("square_size_override_cm") not in (None, "", 0):
+            square = float(d["square_size_override_cm"]) / 100.0
+        else:
+            unit = CALISCOPE_UNITS_M.get(str(d.get("units", "inch")).lower())
+            if unit is None:
+                raise UserError(f"{where}: unknown units '{d.get('units')}'", "use inch or cm")
+            square = min(float(d["board_width"]) / cols, float(d["board_height"]) / rows) * unit
+        marker = float(d.get("aruco_scale", 0.75)) * square
+    except (KeyError, TypeError, ValueError) as e:
+        raise UserError(f"{where}: not a complete Caliscope board ({e})",
+                        "give columns, rows, square_size_override_cm and aruco_scale") from None
+    square, marker = round(square, 9), round(marker, 9)  # 5.4 cm -> 0.054 m, not 0.054000000000000006
+    return BoardSpec(cols, rows, square, marker, str(d.get("dictionary", "DICT_4X4_50")), inverted=bool(
+        d.get("inverted", False)), name=name)
+
+
 def builtin_specs_dir() -> Path:
     """calib/ of the source tree (specs ship with the repo)."""
     return Path(__file__).resolve().parents[2] / "calib"
@@ -187,7 +215,10 @@ def load_board_spec(path_or_name: str | Path) -> BoardSpec:
         avail = sorted(q.stem for q in builtin_specs_dir().glob("charuco*.toml"))
         raise UserError(f"board spec not found: {path_or_name}",
                         f"pass a spec TOML (built in: {', '.join(avail) or 'none'})")
-    return spec_from_dict(read_toml(p, "board spec"), name=p.stem, where=f"board spec {p.name}")
+    data = read_toml(p, "board spec")
+    if "columns" in data and "rows" in data and "squares_x" not in data:
+        return spec_from_caliscope(data, name=p.stem, where=f"board spec {p.name}")
+    return spec_from_dict(data, name=p.stem, where=f"board spec {p.name}")
 
 
 # ---- printing ---------------------------------------------------------------------------

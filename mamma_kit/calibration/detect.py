@@ -2,7 +2,17 @@
 
 Detections of one camera are dense arrays over its sampled frames: ``xy_fn2`` (F, N, 2)
 pixel positions of the N chessboard corners with NaN where a corner was not found, and
-``times_f`` (F,) the frames' timestamps on the camera's own clock. Large frames are
+``times_f`` (F,) the frames' timestamps on the camera's own clock, ``index_f`` (F,) their
+frame numbers in the video and ``mirrored_f`` (F,) which views show the board's back side.
+
+A board seen from behind (through thin paper, or the back of a double-sided print) is the
+mirror image of its front, so no marker reads right and no chessboard corner is found.
+Where markers are found but no corners, the horizontally flipped image is searched too; its
+corners, mapped back to the stored image (x -> W - 1 - x) with their ids, are observations
+of the same 3D corners seen from the other side and serve intrinsics and extrinsics alike.
+
+Short or low-frame-rate videos are read whole (every frame); long ones are sampled at about
+``max_fps`` frames per second of video. Large frames are
 searched for markers at a reduced size, then OpenCV interpolates and refines the chessboard
 corners at full resolution from the scaled-up markers, so 4K phone videos cost little more
 than 1080p ones.
@@ -34,6 +44,17 @@ class Detections:
     rotation_deg: int = 0  # display rotation stored in the file (frames are used as stored)
     frame_step: int = 1
     extra: dict = field(default_factory=dict)
+    index_f: np.ndarray | None = None  # (F,) frame numbers in the video (default: k * frame_step)
+    mirrored_f: np.ndarray | None = None  # (F,) bool: the view shows the board's back side
+
+    def __post_init__(self):
+        F = len(self.times_f)
+        if self.index_f is None:
+            self.index_f = np.arange(F) * int(self.frame_step)
+        if self.mirrored_f is None:
+            self.mirrored_f = np.zeros(F, bool)
+        self.index_f = np.asarray(self.index_f, int)
+        self.mirrored_f = np.asarray(self.mirrored_f, bool)
 
     @property
     def n_corners_f(self) -> np.ndarray:
@@ -54,16 +75,36 @@ class Detections:
     def to_npz_dict(self) -> dict:
         return {"times_f": self.times_f, "xy_fn2": self.xy_fn2, "n_markers_f": self.n_markers_f,
                 "size": np.array(self.size), "rotation_deg": np.array(self.rotation_deg),
-                "frame_step": np.array(self.frame_step)}
+                "frame_step": np.array(self.frame_step), "index_f": self.index_f, "mirrored_f": self.mirrored_f}
+
+    @classmethod
+    def from_npz_dict(cls, camera: str, video: str, z) -> "Detections":
+        return cls(camera, video, tuple(int(v) for v in z["size"]), z["times_f"], z["xy_fn2"], z["n_markers_f"],
+                   int(z["rotation_deg"]), int(z["frame_step"]), index_f=z["index_f"], mirrored_f=z["mirrored_f"])
 
 
 class BoardFinder:
     """Detects one board spec in grey images; marker search on a reduced image when large."""
 
-    def __init__(self, spec: BoardSpec, max_detect_width: int = 2000, inverted: bool | None = None):
+    def __init__(self, spec: BoardSpec, max_detect_width: int = 2000, inverted: bool | None = None,
+                 mirrored: bool = True):
         self.spec = spec
         self.detector = spec.detector(inverted=inverted)
         self.max_w = int(max_detect_width)
+        self.mirrored = bool(mirrored)
+
+    def detect_any_side(self, grey: np.ndarray) -> tuple[np.ndarray, int, bool]:
+        """-> (xy_n2, markers found, seen from behind): the front first; where markers are
+        found but too few corners, the mirrored image, its corners mapped back to ``grey``'s
+        pixels (x -> W - 1 - x) under their own ids."""
+        xy, n_markers = self.detect(grey)
+        if not self.mirrored or n_markers == 0 or np.isfinite(xy[:, 0]).sum() >= MIN_CORNERS:
+            return xy, n_markers, False
+        xy_m, n_m = self.detect(np.ascontiguousarray(grey[:, ::-1]))
+        if np.isfinite(xy_m[:, 0]).sum() < max(MIN_CORNERS, np.isfinite(xy[:, 0]).sum() + 1):
+            return xy, n_markers, False
+        xy_m[:, 0] = grey.shape[1] - 1 - xy_m[:, 0]
+        return xy_m, n_m, True
 
     def detect(self, grey: np.ndarray) -> tuple[np.ndarray, int]:
         """-> (xy_n2 with NaN rows for missing corners, number of markers found)."""
@@ -114,38 +155,50 @@ class BoardFinder:
         return inl if inl.mean() >= 0.7 else np.zeros(len(ids), bool)
 
 
-def frame_step_for(nominal_fps: float, max_fps: float | None) -> int:
+WHOLE_VIDEO_FRAMES = 400  # videos with at most this many frames are read whole
+
+
+def frame_step_for(nominal_fps: float, max_fps: float | None, n_frames: int | None = None) -> int:
+    """Every ``step``-th frame is searched: about ``max_fps`` per second of video, but every
+    frame of a short video (``n_frames`` <= WHOLE_VIDEO_FRAMES) and never fewer than that
+    many frames of a longer one (a 20 s clip at 30 fps keeps every second frame)."""
     if not max_fps or max_fps <= 0 or nominal_fps <= 0:
         return 1
-    return max(1, int(round(nominal_fps / max_fps)))
+    step = max(1, int(round(nominal_fps / max_fps)))
+    if n_frames is not None:
+        step = max(1, min(step, int(n_frames) // WHOLE_VIDEO_FRAMES))
+    return step
 
 
 def detect_video(path: str | Path, spec: BoardSpec, camera: str | None = None, *, max_fps: float | None = 10.0,
-                 max_detect_width: int = 2000, progress: bool = True) -> Detections:
-    """Detect the board in every ``step``-th frame of a video (about ``max_fps`` per second)."""
+                 max_detect_width: int = 2000, progress: bool = True, mirrored: bool = True) -> Detections:
+    """Detect the board in every ``step``-th frame of a video (see :func:`frame_step_for`),
+    from the front or, with ``mirrored``, from behind."""
     from mamma_kit.video.reader import VideoReader
 
     path = Path(path)
     r = VideoReader(path)
     info = r.info
-    step = frame_step_for(info.nominal_fps, max_fps)
-    finder = BoardFinder(spec, max_detect_width)
+    step = frame_step_for(info.nominal_fps, max_fps, info.n_frames)
+    finder = BoardFinder(spec, max_detect_width, mirrored=mirrored)
     n_sel = (info.n_frames + step - 1) // step
     times = np.full(n_sel, np.nan)
+    index = np.zeros(n_sel, int)
     xy = np.full((n_sel, spec.n_corners, 2), np.nan)
     nm = np.zeros(n_sel, int)
+    back = np.zeros(n_sel, bool)
     k = 0
     frames = r.frames(fmt="gray")
     it = track(frames, f"detect {camera or path.stem}", total=info.n_frames) if progress else frames
     for i, (t, grey) in enumerate(it):
         if i % step or k >= n_sel:
             continue
-        times[k] = t
-        xy[k], nm[k] = finder.detect(grey)
+        times[k], index[k] = t, i
+        xy[k], nm[k], back[k] = finder.detect_any_side(grey)
         k += 1
     keep = np.isfinite(times)
     return Detections(camera or path.stem, str(path), (info.width, info.height), times[keep], xy[keep], nm[keep],
-                      info.rotation_deg, step)
+                      info.rotation_deg, step, index_f=index[keep], mirrored_f=back[keep])
 
 
 # ---- what board does the video show? ------------------------------------------------------
@@ -156,11 +209,17 @@ _FAMILIES = ["4X4_100", "5X5_100", "6X6_100", "7X7_100", "APRILTAG_16H5", "APRIL
 _FAMILIES_SLOW = ["ARUCO_ORIGINAL", "APRILTAG_36H11", "4X4_1000", "5X5_1000", "6X6_1000", "7X7_1000"]
 
 
-def _sample_frames(path: Path, n: int) -> list[np.ndarray]:
+def _sample_frames(path: Path, n: int, det: Detections | None = None) -> list[np.ndarray]:
+    """Up to ``n`` grey frames: those where the detection found the most markers (the
+    frames that show a board), else spread evenly over the video."""
     from mamma_kit.video.reader import VideoReader
 
     r = VideoReader(path)
     idx = np.unique(np.linspace(0, r.n_frames - 1, min(n, r.n_frames)).round().astype(int))
+    if det is not None and len(det.n_markers_f) and det.n_markers_f.max() > 0:
+        order = np.argsort(-det.n_markers_f, kind="stable")
+        order = order[det.n_markers_f[order] > 0][:n]
+        idx = np.unique(det.index_f[order])
     return [img for _, _, img in r.read_indices(idx, fmt="gray")]
 
 
@@ -212,7 +271,7 @@ def _marker_survey(frames: list[np.ndarray]) -> dict:
 def _corner_score(spec: BoardSpec, frames: list[np.ndarray]) -> int:
     """Corners found over the frames that agree with a homography of the board (so a wrong
     layout that still yields some corners scores low)."""
-    finder = BoardFinder(spec)
+    finder = BoardFinder(spec, mirrored=False)
     total = 0
     for g in frames:
         xy, _ = finder.detect(g)
@@ -225,17 +284,23 @@ def _corner_score(spec: BoardSpec, frames: list[np.ndarray]) -> int:
     return total
 
 
-def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int = 6) -> UserError | None:
+def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int = 12,
+                   detections: Detections | None = None) -> UserError | None:
     """Find which board variant a video shows and return the UserError that says so, or
     None when the spec itself is the best match (the board is just seldom seen well).
 
-    Tries other dictionaries (by surveying markers of every family), the legacy layout,
-    inverted colours and swapped rows/columns, and names the variant that matches."""
+    Looks at the frames where the detection found most markers (``detections``), else at
+    frames spread over the video. Tries other dictionaries (by surveying markers of every
+    family), the legacy layout, inverted colours, swapped rows/columns and the board seen
+    from behind (mirrored), and names the variant that matches."""
     path = Path(path)
-    frames = _sample_frames(path, n_frames)
+    frames = _sample_frames(path, n_frames, detections)
     where = f"camera {camera}: no ChArUco board found in {len(frames)} sampled frames of {path.name} " \
             f"(spec {spec.describe()})"
-    survey = _marker_survey(frames)
+    mirrored = [np.ascontiguousarray(g[:, ::-1]) for g in frames]
+    # markers of a board seen from behind read right only in the mirrored frames
+    surveys = [_marker_survey(frames), _marker_survey(mirrored)]
+    survey = max(surveys, key=lambda sv: max(v["any"] for v in sv.values()))
     fam = max(survey, key=lambda f: survey[f]["any"])
     info = survey[fam]
     n_found = info["any"]
@@ -252,16 +317,17 @@ def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int
         dictionary = spec.dictionary
     base = spec.with_(dictionary=dictionary, inverted=inverted)
     variants = []
-    for swap in (False, True):
-        for legacy in (False, True):
-            v = base.with_(legacy=legacy)
-            if swap:
-                v = v.with_(squares_x=spec.squares_y, squares_y=spec.squares_x)
-            try:
-                variants.append((v, _corner_score(v, frames)))
-            except UserError:
-                continue
-    best, score = max(variants, key=lambda vs: vs[1])
+    for back in (False, True):
+        for swap in (False, True):
+            for legacy in (False, True):
+                v = base.with_(legacy=legacy)
+                if swap:
+                    v = v.with_(squares_x=spec.squares_y, squares_y=spec.squares_x)
+                try:
+                    variants.append((v, back, _corner_score(v, mirrored if back else frames)))
+                except UserError:
+                    continue
+    best, from_behind, score = max(variants, key=lambda vs: vs[2])
     changes = []
     if best.dictionary != spec.dictionary:
         changes.append(f'dictionary = "{best.dictionary}"')
@@ -271,16 +337,22 @@ def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int
         changes.append(f"legacy = {'true' if best.legacy else 'false'}")
     if best.squares_x != spec.squares_x:
         changes.append(f"squares_x = {best.squares_x}, squares_y = {best.squares_y} (rows and columns swapped)")
+    behind = " seen from behind (the board's back side, mirrored)" if from_behind and score > 0 else ""
     if not changes and score > 0:
+        if behind and detections is not None:
+            n_back = int(detections.mirrored_f.sum())
+            return UserError(f"{where}; the board is{behind} in {n_back} frames, too few to calibrate this camera",
+                             "record the board's front for this camera too, closer, at several places and tilts")
         return None  # the spec is right: the board is just rarely seen well
     if score == 0 or not changes:
         return UserError(f"{where}; {n_found} {fam} markers are visible but no variant of the board "
-                         f"(dictionary, legacy layout, inverted, swapped rows/columns) yields chessboard corners",
+                         f"(dictionary, legacy layout, inverted, swapped rows/columns, seen from behind) yields "
+                         f"chessboard corners",
                          "check squares_x, squares_y and the marker ids of the printed board, or print it again "
                          "with `mamma-kit board`")
     what = {"dictionary": "another dictionary", "inverted": "inverted colours", "legacy": "the legacy layout",
             "squares_x": "swapped rows/columns"}
     kinds = [what[c.split(" ")[0]] for c in changes]
-    return UserError(f"{where}; the video shows a board with {', '.join(kinds)}: it matches "
+    return UserError(f"{where}; the video shows a board with {', '.join(kinds)}{behind}: it matches "
                      f"{', '.join(changes)} ({score} corners found)",
                      f"set {'; '.join(changes)} in the board spec and run again")

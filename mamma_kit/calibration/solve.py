@@ -10,7 +10,7 @@ still-board events and intrinsic views; the world frame from the board on the fl
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
@@ -18,6 +18,7 @@ import numpy as np
 
 from mamma_kit.calibration import association as assoc
 from mamma_kit.calibration.board import BoardSpec
+from mamma_kit.calibration.clocks import SharedClock, shared_clock_from_videos
 from mamma_kit.calibration.bundle import (BundleResult, bundle_adjust, check_connected, event_poses,
                                           init_extrinsics, pair_graph)
 from mamma_kit.calibration.detect import MIN_CORNERS, Detections, detect_video, diagnose_board
@@ -46,6 +47,7 @@ class Settings:
     cross_validation: bool = True
     max_detect_width: int = 2000
     workers: int | None = None  # processes for detection (default: one per CPU)
+    mirrored: bool = True  # also look for the board seen from behind (mirrored)
 
     def to_dict(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if v is not None}
@@ -86,14 +88,29 @@ def _scaled_intrinsics(cam: Camera, size: tuple[int, int], name: str, src: str) 
 def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | None = None, *,
               intrinsics: Rig | None = None, intrinsics_src: str = "--intrinsics",
               clocks: dict[str, ClockModel] | None = None, progress: bool = True,
-              detections: dict[str, Detections] | None = None, cache_dir: Path | None = None) -> CalibrationResult:
-    """Calibrate a rig from one board video per camera (see the module docstring)."""
+              detections: dict[str, Detections] | None = None, cache_dir: Path | None = None,
+              shared_clock: SharedClock | None = None) -> CalibrationResult:
+    """Calibrate a rig from one board video per camera (see the module docstring).
+
+    ``clocks`` (a timing model, or identical clocks for --synced) says how the videos'
+    clocks relate; ``shared_clock`` (from a timestamps file) gives every video frame a time
+    on one clock. With neither, the videos' own frame timestamps are checked for a shared
+    absolute clock; failing that, clock offsets come from the still boards."""
     st = settings or Settings()
     names = list(videos)
     t_start = time.perf_counter()
     warnings: list[str] = []
     if len(names) < 1:
         raise UserError("no board videos given", "pass one board video per camera")
+    if intrinsics is not None:
+        from mamma_kit.core.camera import PIXEL_LENS_MODELS
+
+        pix = [c.name for c in intrinsics if c.model in PIXEL_LENS_MODELS and c.name in names]
+        if pix:
+            raise UserError(f"{intrinsics_src}: camera {', '.join(pix)} uses the {intrinsics[pix[0]].model} lens "
+                            f"model, which calibrate cannot refine or pose boards with",
+                            "convert it first with `mamma-kit calib convert FILE out.json` (the closest radtan lens, "
+                            "with a warning of what moves) and pass out.json")
     if clocks is not None:
         missing = [n for n in names if n not in clocks]
         if missing:
@@ -116,10 +133,37 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     for n in names:
         if len(dets[n].usable(spec)) < MIN_VIEWS:
             # few or no views: most often a board that differs from its spec
-            err = diagnose_board(videos[n], spec, n)
+            err = diagnose_board(videos[n], spec, n, detections=dets[n])
             if err is not None:
                 raise err
+        n_back = int(dets[n].mirrored_f[dets[n].usable(spec)].sum())
+        if n_back:
+            log.info(f"{n}: {n_back} of {len(dets[n].usable(spec))} board views are seen from behind (mirrored "
+                     f"back side): used as views of the same corners")
+        if dets[n].rotation_deg:
+            log.info(f"{n}: {Path(videos[n]).name} asks to be displayed rotated by {dets[n].rotation_deg} degrees; "
+                     f"calibrated as its frames are stored ({dets[n].size[0]}x{dets[n].size[1]}), as every "
+                     f"mamma-kit stage reads them")
     t_detect = time.perf_counter() - t_start
+    # shared clocks: a timestamps file, else the videos' own absolute frame timestamps
+    timing_note = None
+    if clocks is not None:
+        timing_note = "synced (--synced)" if all(c.source == "synced" for c in clocks.values()) else "given"
+    if clocks is None and len(names) > 1:
+        if shared_clock is None:
+            shared_clock = shared_clock_from_videos({n: dets[n].times_f for n in names})
+        if shared_clock is not None:
+            for n in shared_clock.frame_times or {}:
+                ft = shared_clock.frame_times[n]
+                if len(dets[n].index_f) and dets[n].index_f.max() >= len(ft):
+                    raise UserError(f"the timestamps hold {len(ft)} frames of camera {n} but frame "
+                                    f"{int(dets[n].index_f.max())} was read from its video",
+                                    "pass the timestamps written with these very videos")
+                dets[n] = replace(dets[n], times_f=ft[dets[n].index_f])
+            clocks = {n: ClockModel(source=shared_clock.source) for n in names}
+            timing_note = shared_clock.detail
+            log.info(f"calibrate: {shared_clock.detail}: moving-board frames are matched across cameras "
+                     f"(no --synced needed)")
     # 2. intrinsics
     intr: dict[str, IntrinsicResult] = {}
     fixed: set[str] = set()
@@ -188,7 +232,17 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     graph = pair_graph(names, poses)
     counts = {n: len(intr[n].views) for n in names}
     if len(names) > 1:
-        check_connected(names, graph, counts, st.min_shared, near=_near_partner(names, graph, dets, runs))
+        try:
+            check_connected(names, graph, counts, st.min_shared, near=_near_partner(names, graph, dets, runs))
+        except UserError as e:
+            if clocks is not None:
+                raise
+            holds = ", ".join(f"{n}: {len(runs[n])}" for n in names)
+            raise UserError(f"{e.message}: too few still holds are shared (still holds per camera {holds}) and the "
+                            f"videos' clocks are unknown (no timestamps file beside them, frame timestamps not on "
+                            f"one clock)",
+                            f"if the cameras were synchronised pass --synced (or --timestamps FILE); if not, sync "
+                            f"the board videos and pass --timing timing.toml, or {e.hint}") from None
     degree = {n: sum(e["n_agree"] for (a, b), e in graph.items() if n in (a, b)) for n in names}
     reference = max(names, key=lambda n: (degree[n], -names.index(n)))
     init = init_extrinsics(names, graph, reference)
@@ -256,7 +310,8 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
             "bundle_std": ba.std.get(n, {}),
             "video": str(videos[n]), "size": list(dets[n].size), "rotation_deg": dets[n].rotation_deg,
             "frames_detected": int((dets[n].n_corners_f >= MIN_CORNERS).sum()),
-            "frames_sampled": int(len(dets[n].times_f)),
+            "frames_seen_from_behind": int((dets[n].mirrored_f & (dets[n].n_corners_f >= MIN_CORNERS)).sum()),
+            "frames_sampled": int(len(dets[n].times_f)), "frame_step": int(dets[n].frame_step),
         }
         if clocks is None and n in offsets:
             d["board_clock_offset_s"] = offsets[n]
@@ -276,7 +331,7 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
                    "sync": int(sum(ev.kind == "sync" for ev in events)),
                    "views": int(sum(ev.kind == "view" for ev in events))},
         "shared_views": pairs,
-        "timing": "given" if clocks is not None else ("estimated from still boards" if len(names) > 1 else "single"),
+        "timing": timing_note or ("estimated from still boards" if len(names) > 1 else "single"),
         "observations": int(ba.inlier.sum()), "outliers": int((~ba.inlier).sum()),
         "bundle_rounds": ba.cost_history,
         "seconds": {"detect": round(t_detect, 2), "bundle": round(t_ba, 2),
@@ -336,19 +391,20 @@ def _cached_detections(video: Path, spec: BoardSpec, name: str, st: Settings, ca
     if cache_dir is not None:
         stt = Path(video).stat()
         key = sha256_json({"video": str(Path(video).resolve()), "size": stt.st_size, "mtime": stt.st_mtime_ns,
-                           "spec": spec.to_dict(), "fps": st.max_fps, "width": st.max_detect_width, "v": 1})
+                           "spec": spec.to_dict(), "fps": st.max_fps, "width": st.max_detect_width,
+                           "mirrored": st.mirrored, "v": 2})
         f = Path(cache_dir) / f"{name}.npz"
         if f.is_file():
             try:
                 z = read_npz(f, "detection cache")
                 if str(z["key"]) == key:
                     log.info(f"{name}: board detections reused from {f}")
-                    return Detections(name, str(video), tuple(int(v) for v in z["size"]), z["times_f"], z["xy_fn2"],
-                                      z["n_markers_f"], int(z["rotation_deg"]), int(z["frame_step"]))
+                    return Detections.from_npz_dict(name, str(video), z)
             except Exception:
                 pass
     log.info(f"detecting the board in {video}")
-    d = detect_video(video, spec, name, max_fps=st.max_fps, max_detect_width=st.max_detect_width, progress=progress)
+    d = detect_video(video, spec, name, max_fps=st.max_fps, max_detect_width=st.max_detect_width, progress=progress,
+                     mirrored=st.mirrored)
     if key is not None:
         write_npz(Path(cache_dir) / f"{name}.npz", key=np.array(key), **d.to_npz_dict())
     return d
@@ -386,7 +442,8 @@ def summary(result: CalibrationResult, output: Path | None = None, figures: list
             "cross_validation_px": d.get("cross_validation_px"),
         }
     out = {"rms_px": result.diagnostics["rms_px"], "cameras": cams, "world": result.diagnostics["world"],
-           "events": result.diagnostics["events"], "warnings": result.warnings}
+           "events": result.diagnostics["events"], "warnings": result.warnings,
+           "timing": result.diagnostics.get("timing")}
     if output is not None:
         out["output"] = str(output)
     if figures is not None:

@@ -36,16 +36,39 @@ def _clocks(videos: dict, timing: Path | None, synced: bool) -> dict[str, ClockM
     return None
 
 
+def _shared_clock(videos: dict[str, Path], timestamps: Path | None, timing: Path | None, synced: bool):
+    """The timestamps file given, or a timestamps.csv beside the videos (unless the clocks
+    are given some other way) -> SharedClock, else None."""
+    from mamma_kit.calibration.clocks import find_timestamps_file, read_timestamps
+    from mamma_kit.video.reader import VideoReader
+
+    if timestamps is not None and (timing is not None or synced):
+        raise UserError("--timestamps, --timing and --synced each say how the clocks relate",
+                        "pass only one of them")
+    if timestamps is None:
+        if timing is not None or synced or len(videos) < 2:
+            return None
+        timestamps = find_timestamps_file(videos)
+        if timestamps is None:
+            return None
+        log.info(f"calibrate: found {timestamps} beside the board videos")
+    elif not Path(timestamps).is_file():
+        raise UserError(f"timestamps file not found: {timestamps}", "check the path")
+    return read_timestamps(Path(timestamps), {n: VideoReader(p).n_frames for n, p in videos.items()})
+
+
 def calibrate_videos(videos: dict[str, Path], spec_src: str, out: Path, settings: Settings, *,
                      report_dir: Path | None, intrinsics: Path | None = None, timing: Path | None = None,
                      synced: bool = False, progress: bool = True, cache_dir: Path | None = None,
-                     hasher: FileHasher | None = None, command: str = "calibrate") -> dict:
+                     hasher: FileHasher | None = None, command: str = "calibrate",
+                     timestamps: Path | None = None) -> dict:
     """Calibrate from one board video per camera; writes ``out`` (+ figures); returns the
     --json summary."""
     for n, p in videos.items():
         if not Path(p).is_file():
             raise UserError(f"board video of {n} not found: {p}", "check the path")
     spec = load_board_spec(spec_src)
+    shared = _shared_clock({n: Path(p) for n, p in videos.items()}, timestamps, timing, synced)
     rig_intr = None
     if intrinsics is not None:
         from mamma_kit.calibration.formats import read_rig
@@ -53,9 +76,9 @@ def calibrate_videos(videos: dict[str, Path], spec_src: str, out: Path, settings
         rig_intr = read_rig(intrinsics)
     result = calibrate({n: Path(p) for n, p in videos.items()}, spec, settings, intrinsics=rig_intr,
                        intrinsics_src=str(intrinsics), clocks=_clocks(videos, timing, synced), progress=progress,
-                       cache_dir=cache_dir)
+                       cache_dir=cache_dir, shared_clock=shared)
     hash_of = hasher or FileHasher(None)
-    inputs = [Path(p) for p in videos.values()] + [p for p in (intrinsics, timing) if p is not None]
+    inputs = [Path(p) for p in videos.values()] + [p for p in (intrinsics, timing, timestamps) if p is not None]
     prod = producer(command, {str(p): hash_of(p) for p in inputs})
     figures = write_outputs(result, out, spec, report_dir, prod)
     return summary(result, out, figures)
@@ -63,7 +86,7 @@ def calibrate_videos(videos: dict[str, Path], spec_src: str, out: Path, settings
 
 def run_calibrate(ws, *, board: str | None = None, settings: Settings | None = None, intrinsics: Path | None = None,
                   timing: Path | None = None, synced: bool = False, figures: bool = True, force: bool = False,
-                  progress: bool = True) -> dict:
+                  progress: bool = True, timestamps: Path | None = None) -> dict:
     """The workspace stage: the board videos of capture.toml -> ws.calibration."""
     cap = ws.load_capture()
     videos = {n: e.board_video for n, e in cap.cameras.items() if e.board_video is not None}
@@ -81,7 +104,12 @@ def run_calibrate(ws, *, board: str | None = None, settings: Settings | None = N
     settings = settings or Settings()
     spec = load_board_spec(spec_src)
     inputs = [Path(p) for p in videos.values()] + ([Path(spec_src)] if Path(spec_src).is_file() else [])
-    inputs += [p for p in (intrinsics, timing) if p is not None]
+    if timestamps is None and timing is None and not synced:
+        from mamma_kit.calibration.clocks import find_timestamps_file
+
+        found = find_timestamps_file({n: Path(p) for n, p in videos.items()}) if len(videos) > 1 else None
+        inputs += [found] if found is not None else []
+    inputs += [p for p in (intrinsics, timing, timestamps) if p is not None]
     key = {**settings.to_dict(), "spec": spec.to_dict(), "synced": synced, "figures": figures}
     manifest = StageManifest(ws.cache_dir, "calibrate", ws.root)
     state = manifest.check(inputs, key)
@@ -99,7 +127,7 @@ def run_calibrate(ws, *, board: str | None = None, settings: Settings | None = N
                            report_dir=ws.report_dir / "calibration" if figures else None, intrinsics=intrinsics,
                            timing=timing, synced=synced, progress=progress,
                            cache_dir=ws.cache_dir / "board-detections", hasher=manifest.hasher,
-                           command=f"calibrate {ws.root.name}")
+                           command=f"calibrate {ws.root.name}", timestamps=timestamps)
     secs = time.perf_counter() - t0
     manifest.record(inputs, key, [ws.calibration], {"rms_px": out.get("rms_px")}, secs)
     return {"stage": "calibrate", "skipped": False, "reason": state.reason, "seconds": round(secs, 2), **out}

@@ -28,6 +28,9 @@ def calibrate_cmd(
                                                                  "moving-board frames across cameras too."),
     synced: bool = typer.Option(False, "--synced", help="The videos' timestamps share one clock (genlocked "
                                                         "cameras): like --timing with identical clocks."),
+    timestamps: Optional[Path] = typer.Option(None, "--timestamps", help="Frame timestamps on one clock (Caliscope "
+                                              "timestamps.csv: sync_index, cam_id, frame_time); found beside the "
+                                              "videos by itself."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for the diagnostic figures (default: "
                                                                  "WORKSPACE/report/calibration or OUT-report/)."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
@@ -51,7 +54,7 @@ def calibrate_cmd(
             raise UserError("--out/--report are for board video files",
                             "a workspace always writes WORKSPACE/calibration.toml and report/calibration/")
         res = run_calibrate(ws, board=board, settings=settings, intrinsics=intrinsics, timing=timing, synced=synced,
-                            figures=not no_figures, force=force, progress=not quiet)
+                            figures=not no_figures, force=force, progress=not quiet, timestamps=timestamps)
     else:
         videos = {}
         for p in targets:
@@ -67,13 +70,13 @@ def calibrate_cmd(
         report = report or out.with_name(out.stem + "-report")
         res = calibrate_videos(videos, board, out, settings, report_dir=None if no_figures else report,
                                intrinsics=intrinsics, timing=timing, synced=synced, progress=not quiet,
-                               command="calibrate " + " ".join(str(t) for t in targets))
+                               command="calibrate " + " ".join(str(t) for t in targets), timestamps=timestamps)
     if json_out:
         emit_json(res)
     elif not res.get("skipped"):
         log.info(f"{res['output']}: {len(res['cameras'])} cameras, bundle-adjusted rms {res['rms_px']:.3f} px over "
                  f"{res['events']['total']} board poses ({res['events']['shared']} shared); world from "
-                 f"{res['world']['source']}")
+                 f"{res['world']['source']}; clocks: {res.get('timing', '?')}")
         for n, cd in res["cameras"].items():
             cv = (cd.get("cross_validation_px") or {}).get("median_px")
             log.info(f"  {n}: rms {cd['rms_px']:.3f} px, fx {cd['fx']:.1f} px, {cd['views']} views "
