@@ -297,3 +297,12 @@ def test_cli_errors(cli, tmp_path, ring_rig):
     assert r.code == 0 and '"cam0"' in r.out and '"cam2"' in r.out
     r = cli("pick-cameras", str(tmp_path), "--count", "9")
     assert r.code == 2 and "4" in r.err
+
+
+def test_the_fit_refuses_a_lens_its_projection_does_not_model():
+    from mamma_kit.fitting.projection import RigTensors
+
+    rig = make_ring_rig(2)
+    rig[1].model, rig[1].dist = "vicon_radial", np.array([320.0, 240.0, 1e-7, 0.0, 0.0])
+    with pytest.raises(UserError, match="not vicon_radial"):
+        RigTensors.from_rig(rig)

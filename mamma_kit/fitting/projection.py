@@ -21,6 +21,10 @@ from mamma_kit.core.camera import Rig
 MIN_DEPTH = 1e-3  # m: points closer to (or behind) the camera plane do not project
 
 
+# the lens models this torch projection implements (core.camera has more, e.g. vicon_radial)
+FIT_MODELS = ("radtan", "rational", "fisheye")
+
+
 @dataclass
 class RigTensors:
     """C cameras as tensors: R (C, 3, 3), t (C, 3), K (C, 3, 3), dist (C, 12) zero-padded,
@@ -36,6 +40,13 @@ class RigTensors:
 
     @classmethod
     def from_rig(cls, rig: Rig, dtype=torch.float64) -> "RigTensors":
+        other = sorted({c.model for c in rig} - set(FIT_MODELS))
+        if other:
+            from mamma_kit.core.errors import UserError
+
+            raise UserError(f"the fit projects OpenCV lenses ({', '.join(FIT_MODELS)}), not {', '.join(other)}",
+                            "convert the calibration with `mamma-kit calib convert IN OUT --to opencv-json` (it fits "
+                            "the closest radtan lens and says how far projections move), then fit again")
         C = len(rig)
         dist = np.zeros((C, 12))
         for i, c in enumerate(rig):
