@@ -19,9 +19,6 @@ from pathlib import Path
 
 import numpy as np
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real" / "pose2sim-multiperson"
-
-
 def reprojection(rig, kts, mts, perm):
     """Errors (% of box height, px) with camera c's track perm[c][p] as person p."""
     C, T = len(kts), min(len(k.frame_times) for k in kts)
@@ -46,27 +43,13 @@ def main() -> None:
     ap.add_argument("--root", type=Path, default=Path("bench_data/kps"))
     ap.add_argument("--rerun", action="store_true", help="track and keypoints again even if present")
     args = ap.parse_args()
-    from mamma_kit.cli.app import main as cli
-    from mamma_kit.core import log
+    from real_workspace import real_workspace
+
     from mamma_kit.core.calibfile import read_calibration
     from mamma_kit.core.tracks import KeypointTracks, MaskTracks
-    from mamma_kit.core.workspace import Workspace
-    from mamma_kit.pipeline import init_workspace
 
-    log.set_quiet(True)
-    ws_path = args.root / "ws"
-    if not (ws_path / "capture.toml").is_file():
-        init_workspace(ws_path, sorted((REAL / "videos").glob("cam*.mp4")),
-                       calibration=REAL / "calibration" / "Calib.qca.txt", people=2)
-    ws = Workspace(ws_path)
+    ws = real_workspace(args.root, stages=True, force=args.rerun)
     cams = ws.load_capture().camera_names
-    force = ["--force"] if args.rerun else []
-    for cmd in (["track", str(ws_path), "--backend", "pose", "--people", "2"], ["keypoints", str(ws_path)]):
-        try:
-            cli([*cmd, "--quiet", *force])
-        except SystemExit as e:
-            if e.code not in (0, None):
-                raise
     mts = [MaskTracks.load(ws.mask_file(c)) for c in cams]
     kts = [KeypointTracks.load(ws.keypoints_file(c)) for c in cams]
     print("| camera | tracks kept | frames with each track | person-frames with keypoints |")

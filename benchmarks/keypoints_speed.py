@@ -15,30 +15,21 @@ import argparse
 import time
 from pathlib import Path
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real" / "pose2sim-multiperson"
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("bench_data/kps"))
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--threads", type=int, default=2, help="LiteRT threads")
     args = ap.parse_args()
-    from mamma_kit.core import log
+    from real_workspace import real_workspace
+
     from mamma_kit.core.tracks import MaskTracks
-    from mamma_kit.core.workspace import Workspace
     from mamma_kit.keypoints.estimator import PoseEstimator
     from mamma_kit.keypoints.stage import keypoints_for_tracks
     from mamma_kit.masks.base import CameraInput
     from mamma_kit.masks.pose import PoseBackend
-    from mamma_kit.pipeline import init_workspace
 
-    log.set_quiet(True)
-    ws_path = args.root / "ws"
-    if not (ws_path / "capture.toml").is_file():
-        init_workspace(ws_path, sorted((REAL / "videos").glob("cam*.mp4")),
-                       calibration=REAL / "calibration" / "Calib.qca.txt", people=2)
-    ws = Workspace(ws_path)
+    ws = real_workspace(args.root)
     cap = ws.load_capture()
     backend = PoseBackend(people=2, threads=args.threads)
     track_fps, kp_rates = [], []

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real" / "pose2sim-multiperson"
 SHIFTS = {"cam02": 0.0373, "cam03": -0.0915, "cam04": 0.2502}
 
 
@@ -20,27 +19,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("bench_data/kps"))
     args = ap.parse_args()
-    from mamma_kit.cli.app import main as cli
-    from mamma_kit.core import log
+    from real_workspace import real_workspace
+
     from mamma_kit.core.calibfile import read_calibration
     from mamma_kit.core.tracks import KeypointTracks
-    from mamma_kit.core.workspace import Workspace
-    from mamma_kit.pipeline import init_workspace
     from mamma_kit.timing.motion import motion_clocks
 
-    log.set_quiet(True)
-    ws_path = args.root / "ws"
-    if not (ws_path / "capture.toml").is_file():
-        init_workspace(ws_path, sorted((REAL / "videos").glob("cam*.mp4")),
-                       calibration=REAL / "calibration" / "Calib.qca.txt", people=2)
-    ws = Workspace(ws_path)
+    ws = real_workspace(args.root, stages=True)
     cams = ws.load_capture().camera_names
-    for cmd in (["track", str(ws_path), "--backend", "pose", "--people", "2"], ["keypoints", str(ws_path)]):
-        try:
-            cli([*cmd, "--quiet", "--no-pictures"])
-        except SystemExit as e:
-            if e.code not in (0, None):
-                raise
     rig, _ = read_calibration(ws.calibration)
     kts = {c: KeypointTracks.load(ws.keypoints_file(c)) for c in cams}
     clocks, _, _ = motion_clocks(kts, rig, cams[0])
