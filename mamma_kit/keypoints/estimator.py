@@ -104,15 +104,15 @@ class PoseEstimator:
         return self.detect_batch(x[None], A[None], min_score)[0]
 
     def detect_regions(self, image_hw3: np.ndarray, boxes_n4: np.ndarray, masks: list | None = None,
-                       min_score: float = bp.MIN_DET_SCORE) -> list[Detections]:
-        """The detector on square regions around each box (widened by REGION_MARGIN). With ``masks``
+                       min_score: float = bp.MIN_DET_SCORE, margin: float = REGION_MARGIN) -> list[Detections]:
+        """The detector on square regions around each box (widened by ``margin``). With ``masks``
         (bool (H, W) or None per box) the pixels outside a box's mask are blanked, so the detector
         sees only that person where two overlap."""
         size = bp.DET_SIZE
         inputs, affines = [], []
         for i, box in enumerate(np.asarray(boxes_n4, np.float64)):
             cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
-            side = max(box[2] - box[0], box[3] - box[1]) * REGION_MARGIN
+            side = max(box[2] - box[0], box[3] - box[1]) * margin
             A = bp.roi_affine(np.array([cx, cy, side, 0.0]), size)
             x = warp_masked(image_hw3, masks[i] if masks is not None else None, A, size)
             inputs.append(x.astype(np.float32) * (2.0 / 255.0) - 1.0)

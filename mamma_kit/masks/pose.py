@@ -13,7 +13,7 @@ is about: large, long-lived and moving, not a bystander who stands still at the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -67,13 +67,9 @@ SEG_THRESHOLD = 0.5
 class _Track:
     tid: int
     roi: np.ndarray  # (4,) cx, cy, side, rotation for the coming frame
-    born: int
-    last: int
     xy: np.ndarray | None = None  # (33, 2) its last points
-    vis: np.ndarray | None = None  # (33,)
     area: int = 0  # its last mask's pixels
     missed: int = 0
-    boxes: dict = field(default_factory=dict)  # frame -> (4,) box
 
 
 def tiles(W: int, H: int) -> np.ndarray:
@@ -126,12 +122,7 @@ class PoseBackend:
         if t % TILE_EVERY == 0:
             tl = tiles(W, H)
             if len(tl):
-                # tiles are given as boxes; the region grows by REGION_MARGIN, so shrink them first
-                from mamma_kit.keypoints.estimator import REGION_MARGIN
-
-                c = (tl[:, :2] + tl[:, 2:]) / 2
-                half = (tl[:, 2:] - tl[:, :2]) / (2 * REGION_MARGIN)
-                dets += est.detect_regions(img, np.concatenate([c - half, c + half], 1))
+                dets += est.detect_regions(img, tl, margin=1.0)
         rois = [est.rois_from_detections(d) for d in dets if len(d)]
         if not rois:
             return np.zeros((0, 4))
@@ -254,7 +245,6 @@ class PoseBackend:
         est = self.est
         builder = MaskTrackBuilder(cam.name, (W, H), times)
         tracks: list[_Track] = []
-        finished: list[_Track] = []
         next_id = 0
         prev: dict[int, np.ndarray] = {}  # track id -> its mask in the previous frame
         for t, img in log.track(rd.frames(), f"track {cam.name} (pose)", total=len(times)):
@@ -279,7 +269,7 @@ class PoseBackend:
                 if n not in taken and source[n] < 0:
                     near = cost[:, cands.index(n)].min() if cost.shape[0] else np.inf
                     if near >= TRACK_SHARE:
-                        tracks.append(_Track(next_id, res.rois[n], ti, ti))
+                        tracks.append(_Track(next_id, res.rois[n]))
                         got[len(tracks) - 1] = n
                         next_id += 1
             order = sorted(got)
@@ -293,18 +283,16 @@ class PoseBackend:
                         builder.add(ti, tr.tid, m, float(res.score[n]))
                         prev[tr.tid] = m
                         tr.area = int(m.sum())
-                        ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
-                        tr.boxes[ti] = np.array([xs[0], ys[0], xs[-1] + 1, ys[-1] + 1], float)
-                    tr.roi, tr.last, tr.missed = res.next_rois[n], ti, 0
-                    tr.xy, tr.vis = res.xy[n], res.visibility[n]
+                    tr.roi, tr.missed = res.next_rois[n], 0
+                    tr.xy = res.xy[n]
                     alive.append(tr)
                 else:  # keeps its last good ROI and points
                     prev.pop(tr.tid, None)
                     tr.missed += 1
-                    (alive if tr.missed < MAX_MISSED else finished).append(tr)
+                    if tr.missed < MAX_MISSED:
+                        alive.append(tr)
             self._coast(tracks, got, res, source, builder, prev, ti, W, H)
             tracks = alive
-        finished += tracks
         mt = builder.build()
         summ = track_summary(mt)
         mt, chosen = select_people(mt, self.people)
