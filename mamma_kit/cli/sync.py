@@ -15,11 +15,18 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 def sync_cmd(
     targets: List[Path] = typer.Argument(..., help="A capture workspace folder, or two or more videos."),
     method: Optional[str] = typer.Option(None, "--method", help="auto | clap | ltc | tmcd | synced | timestamps | "
-                                                                  "motion (default: the preset's, else auto: every "
-                                                                  "method the files allow). synced: the cameras share "
-                                                                  "one clock (genlock); timestamps: see --timestamps; "
-                                                                  "motion: from the people's keypoints and the "
-                                                                  "calibration (workspace, after track + keypoints)."),
+                                                                  "flash | motion (default: the preset's, else auto: "
+                                                                  "every method the files allow, the most precise "
+                                                                  "wins, the others cross-check it). synced: the "
+                                                                  "cameras share one clock (genlock); timestamps: see "
+                                                                  "--timestamps; flash: a light switched on or a torch "
+                                                                  "flashed in view of every camera; motion: from the "
+                                                                  "people's keypoints and the calibration (workspace, "
+                                                                  "after track + keypoints)."),
+    exposure_ms: Optional[float] = typer.Option(None, "--exposure-ms", help="Flash: the cameras' exposure time, "
+                                                                            "if known (a partly lit frame is timed "
+                                                                            "by it; default: estimated, else half a "
+                                                                            "frame)."),
     timestamps: Optional[Path] = typer.Option(None, "--timestamps", help="CSV of every frame's time on the rig's "
                                                                          "clock (cam_id, frame_time; e.g. Caliscope's "
                                                                          "timestamps.csv); implies --method timestamps."),
@@ -38,18 +45,22 @@ def sync_cmd(
 
     Clap: onsets + GCC-PHAT around each clap, all camera pairs solved jointly. LTC: timecode
     decoded on every frame. tmcd: the files' start timecode. synced: cameras on one clock.
-    timestamps: a file of every frame's time. Writes timing.toml, a per-frame
+    timestamps: a file of every frame's time. flash: the brightness step of a light, timed
+    within the frame (partly exposed frames, rolling-shutter rows). motion: the people's
+    keypoints against the calibration. Writes timing.toml, a per-frame
     timeline (timing_timeline.npz) and pictures (report/sync/ in a workspace).
     """
     from mamma_kit.core.errors import UserError
     from mamma_kit.timing.stage import run_sync, sync_files
 
     setup(quiet, json_out)
+    if timestamps is not None and method is None:
+        method = "timestamps"
     if len(targets) == 1 and targets[0].is_dir():
         from mamma_kit.core.workspace import Workspace
 
         res = run_sync(Workspace(targets[0]), method=method, reference=reference, preset=preset, plots=plots,
-                       force=force, out=out, timestamps=timestamps)
+                       force=force, out=out, timestamps=timestamps, exposure_ms=exposure_ms)
     else:
         videos = {}
         for t in targets:
@@ -60,6 +71,6 @@ def sync_cmd(
                 name, k = f"{t.stem}_{k}", k + 1
             videos[name] = t
         res = sync_files(videos, out or targets[0].parent / "timing.toml", method=method, reference=reference,
-                         preset=preset, plots=plots, timestamps=timestamps)
+                         preset=preset, plots=plots, timestamps=timestamps, exposure_ms=exposure_ms)
     if json_out:
         emit_json(res)

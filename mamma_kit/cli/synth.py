@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
@@ -21,6 +21,9 @@ def synth(
     frames: Optional[int] = typer.Option(None, "--frames", help="Render this many frames (duration = frames / fps)."),
     scale: Optional[float] = typer.Option(None, "--scale", help="Render at this fraction of the recipe's resolution."),
     no_board: bool = typer.Option(False, "--no-board", help="Skip the calibration board session."),
+    flash: Optional[List[float]] = typer.Option(None, "--flash", help="Switch a light on at this scene time (s; "
+                                                                       "repeatable) for flash sync; exposure and "
+                                                                       "rolling shutter from the recipe's [flash]."),
     crops: Optional[int] = typer.Option(None, "--crops", help="Instead of a capture, write N person crops for "
                                                                "training MammaNet (shards in --out)."),
     json_out: bool = JsonOpt,
@@ -36,7 +39,8 @@ def synth(
     else:
         from mamma_kit.synth.capture import synthesize
 
-        summary = synthesize(recipe, out, seed=seed, frames=frames, scale=scale, board=not no_board).summary()
+        summary = synthesize(recipe, out, seed=seed, frames=frames, scale=scale, board=not no_board,
+                               flash=flash).summary()
     if json_out:
         emit_json(summary)
     else:

@@ -45,12 +45,15 @@ class SynthResult:
 
 def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None, frames: int | None = None,
                scale: float | None = None, board: bool = True, overwrite: bool = True,
-               workers: int | None = None) -> SynthResult:
+               workers: int | None = None, flash: list[float] | None = None) -> SynthResult:
     """Render a recipe into a capture workspace at ``out`` (cameras in ``workers`` processes,
-    default one per CPU)."""
+    default one per CPU). ``flash``: scene times a light goes on (the recipe's [flash] table's
+    other settings, else its defaults)."""
     from mamma_kit.synth.scene import build_scene
 
     recipe = load_recipe(recipe_ref, seed)
+    if flash:
+        recipe.flash = dict(recipe.flash or {}) | {"t": [float(x) for x in flash]}
     if scale is not None:
         recipe.render["scale"] = float(scale)
     if frames is not None:
@@ -96,7 +99,9 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
                       producer=prod)
     write_timing(gt / "timing.toml", {c.camera.name: c.clock for c in cams}, reference="scene",
                  method="gt", diagnostics={"note": "true clocks: camera time -> scene time"},
-                 camera_diagnostics={c.camera.name: {"audio_start_s": c.audio_start_s} for c in cams},
+                 camera_diagnostics={c.camera.name: {"audio_start_s": c.audio_start_s} | (
+                     {"exposure_s": c.exposure_s, "readout_s": c.readout_s} if recipe.flash is not None else {})
+                     for c in cams},
                  producer=prod)
     scene.write_gt_bodies(gt, cams[0])
     if recipe.path is not None:

@@ -64,8 +64,18 @@ Ranges written as ``[lo, hi]`` are sampled per camera/person from the recipe's s
     background = "scene"        # the board shown in the capture's own scene (the cameras stay put
                                 # between board and capture), or "clutter": a random cluttered backdrop
 
+    [flash]                     # optional: a light switched on (or a torch flashed) in the scene
+    t = [1.0]                   # scene time(s) the light goes on
+    duration_s = 0.0            # 0: it stays on; else it goes off again after this long
+    gain = 0.8                  # the light it adds to lit surfaces, as a fraction of the scene's
+    exposure_s = 0.0167         # each frame integrates this long (a number, or [lo, hi] per camera)
+    readout_s = 0.0             # rolling shutter: first row to last row (0: global shutter)
+
     [render]
     scale = 1.0                 # render at scale x resolution (tests use small scales)
+    windows_s = [[0.0, 4.0], [60.0, 64.0]]   # optional: render only frames in these scene-time
+                                # windows (long takes for drift benchmarks; the video's timestamps
+                                # jump between windows)
     noise = 2.0                 # sensor noise std (8-bit levels)
     crf = 20
 """
@@ -123,6 +133,7 @@ class Recipe:
     board: dict[str, Any] | None
     render: dict[str, Any]
     path: Path | None = None
+    flash: dict[str, Any] | None = None
     raw: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -297,10 +308,31 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
     render.num("scale", 1.0, lo=0.02, hi=4)
     render.num("noise", 2.0, lo=0, hi=50)
     render.num("crf", 20, lo=0, hi=51)
+    windows = render.data.get("windows_s")
+    if windows is not None:
+        try:
+            win = np.asarray(windows, float).reshape(-1, 2)
+        except (TypeError, ValueError):
+            raise render.err("windows_s", "expected [[start, end], ...] in seconds") from None
+        if not len(win) or (win[:, 1] <= win[:, 0]).any():
+            raise render.err("windows_s", "every window needs start < end")
+        render.data["windows_s"] = win.tolist()
+    flash = data.get("flash")
+    if flash is not None:
+        ff = _Fields(flash, "flash.")
+        t_on = flash.get("t", 1.0)
+        t_on = t_on if isinstance(t_on, list) else [t_on]
+        if not t_on or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in t_on):
+            raise ff.err("t", "expected a time or a list of times (s)")
+        ff.num("duration_s", 0.0, lo=0)
+        ff.num("gain", 0.8, lo=0, hi=20)
+        ff.num("exposure_s", 0.5 / 30, lo=0, hi=1, allow_range=True)
+        ff.num("readout_s", 0.0, lo=-1, hi=1, allow_range=True)
+        flash = dict(flash) | {"t": [float(x) for x in t_on]}
     return Recipe(
         name=top.string("name", path.stem), seed=rseed,
         duration_s=top.num("duration_s", 4.0, lo=0.05, hi=3600), fps=top.num("fps", 30.0, lo=1, hi=240),
         cameras=cameras, clock=clock.data, people_count=n_people, people=persons, height_range=hr,
         motion=motion.data | {"kind": kind}, audio=audio.data | {"sample_rate": sr}, claps=claps,
-        ltc=ltc, tmcd=tmcd, board=board, render=render.data, path=path, raw=data,
+        ltc=ltc, tmcd=tmcd, board=board, render=render.data, path=path, raw=data, flash=flash,
     )

@@ -175,10 +175,13 @@ class CameraRenderer:
 
     def render(self, people: list[PersonMesh], rng: np.random.Generator | None = None, noise: float = 0.0,
                points_by_person: list[np.ndarray] | None = None,
-               scene: "PeopleScene | None" = None) -> tuple[Frame, list[np.ndarray] | None]:
+               scene: "PeopleScene | None" = None, light_h: np.ndarray | None = None
+               ) -> tuple[Frame, list[np.ndarray] | None]:
         """Render one frame; with ``points_by_person`` also return their visibility
         (see :func:`point_visibility`) from the same ray-casting scene. Pass ``scene`` to
-        reuse one built for the same people (several views of one instant)."""
+        reuse one built for the same people (several views of one instant). ``light_h``: a
+        factor per image row on every lit surface (floor and people; a flash, see
+        :func:`flash_rows`), applied before the sensor noise."""
         w, h = self.camera.size
         rgb = self._static_rgb.copy()
         depth = self._static_depth.copy()
@@ -204,6 +207,8 @@ class CameraRenderer:
                     y = np.clip(np.nan_to_num(uv[:, 1]), 0, h - 1).astype(int)
                     vis[p] = vis[p] & ok & (inst2[y, x] == p)
         img = rgb.reshape(h, w, 3)
+        if light_h is not None:
+            img = np.where(np.isfinite(depth).reshape(h, w, 1), img * light_h[:, None, None], img)
         if rng is not None and noise > 0:
             img = img + rng.normal(0, noise / 255.0, img.shape)
         img8 = np.clip(img * 255 + 0.5, 0, 255).astype(np.uint8)
@@ -245,6 +250,26 @@ class CameraRenderer:
         rgb[pix] = col * shade[:, None]
         depth[pix] = z
         inst[pix] = scene.face_person[prim]
+
+
+def flash_rows(clock, t_frame: float, height: int, exposure_s: float, readout_s: float, on_s: np.ndarray,
+               off_s: np.ndarray, gain: float, gamma: float = 2.2) -> np.ndarray:
+    """Per image row (H,): the factor a flash puts on the frame stamped ``t_frame`` (camera clock).
+
+    Row y (in [0, 1]) integrates the light over [tau - e/2, tau + e/2], tau = t_frame + (y - 1/2) R
+    (exposure e, rolling-shutter readout R), mapped to scene time by ``clock``; the light is on
+    over [on_s[i], off_s[i]) in scene time. The added light is linear (gain times the lit fraction
+    of the exposure) and the image is gamma encoded, so the factor on display values is
+    (1 + gain f)^(1/gamma)."""
+    y_h = (np.arange(height) + 0.5) / height
+    tau_h = t_frame + (y_h - 0.5) * readout_s
+    a_h, b_h = clock.to_ref(tau_h - 0.5 * exposure_s), clock.to_ref(tau_h + 0.5 * exposure_s)
+    if exposure_s > 0:
+        lit_h = np.clip(np.minimum(b_h[:, None], off_s[None]) - np.maximum(a_h[:, None], on_s[None]), 0, None).sum(1) \
+            / (b_h - a_h)
+    else:
+        lit_h = ((a_h[:, None] >= on_s[None]) & (a_h[:, None] < off_s[None])).any(1).astype(float)
+    return (1.0 + gain * lit_h) ** (1.0 / gamma)
 
 
 _DEVICE = None

@@ -63,6 +63,8 @@ class SynthCamera:
     clock: ClockModel  # true clock: camera time -> scene time
     frame_times: np.ndarray  # (T,) camera-clock timestamps written into the video
     audio_start_s: float  # camera time of the first audio sample
+    exposure_s: float = 0.0  # each frame integrates the scene's light this long (camera clock)
+    readout_s: float = 0.0  # rolling shutter: from the first row's exposure to the last's
 
     @property
     def scene_times(self) -> np.ndarray:
@@ -93,7 +95,16 @@ def build_rig(recipe: Recipe, frames: int | None = None) -> list[SynthCamera]:
             t = t + np.clip(jrng.normal(0, jitter, n), -0.3 / recipe.fps, 0.3 / recipe.fps)
             t[0] = 0.0
         t = np.round(t * 90000) / 90000  # what the container can hold exactly
-        out.append(SynthCamera(cam, clock, t, audio_start))
+        windows = recipe.render.get("windows_s")
+        if windows:  # long takes at a fraction of the cost: only frames inside the windows are kept
+            s = clock.to_ref(t)
+            t = t[np.any([(s >= a) & (s < b) for a, b in windows], axis=0)]
+        exposure, readout = 0.0, 0.0
+        if recipe.flash is not None:  # its own stream: a flash does not change the rest of the rig
+            frng = np.random.default_rng([recipe.seed + 1, i, 11])
+            exposure = sample(recipe.flash.get("exposure_s", 0.5 / recipe.fps), frng)
+            readout = sample(recipe.flash.get("readout_s", 0.0), frng)
+        out.append(SynthCamera(cam, clock, t, audio_start, exposure, readout))
     return out
 
 

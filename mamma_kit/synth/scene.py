@@ -16,7 +16,7 @@ from mamma_kit.core.tracks import LandmarkTracks, MaskTracks
 from mamma_kit.synth.appearance import person_colors
 from mamma_kit.synth.motion import MotionClip, arm_rest_rotations, euler_to_params, generate_motion
 from mamma_kit.synth.recipe import Recipe
-from mamma_kit.synth.render import CameraRenderer, Environment, PersonMesh
+from mamma_kit.synth.render import CameraRenderer, Environment, PersonMesh, flash_rows
 from mamma_kit.synth.rig import SynthCamera
 from mamma_kit.video.writer import VideoWriter
 
@@ -76,6 +76,11 @@ class Scene:
                                   landmark_set=f"{self.body.name}:{self.body.landmarks.source}", source="gt")
         masks: dict[tuple[int, int], np.ndarray] = {}
         noise = float(recipe.render.get("noise", 2.0))
+        flash = recipe.flash
+        if flash is not None:
+            on_s = np.asarray(flash["t"], float)
+            dur = float(flash.get("duration_s", 0.0))
+            off_s = on_s + dur if dur > 0 else np.full(len(on_s), np.inf)
         chunk = 16
         with VideoWriter(path, w, h, fps=recipe.fps, crf=int(recipe.render.get("crf", 20)), audio_rate=sr,
                          audio_channels=n_ch, audio_codec=codec, timecode=timecode) as wr:
@@ -86,7 +91,10 @@ class Scene:
                 for j, k in enumerate(idx):
                     people = [PersonMesh(verts[p, j], faces, self.colors[p]) for p in range(P)]
                     lms = [verts[p, j, lm_ids] for p in range(P)]
-                    fr, vis = renderer.render(people, rng, noise, lms)
+                    light = None if flash is None else flash_rows(
+                        sc.clock, float(sc.frame_times[k]), h, sc.exposure_s, sc.readout_s, on_s, off_s,
+                        float(flash.get("gain", 0.8)))
+                    fr, vis = renderer.render(people, rng, noise, lms, light_h=light)
                     wr.write_frame(fr.rgb, float(sc.frame_times[k]))
                     for p in range(P):
                         m = fr.instance == p

@@ -15,14 +15,15 @@ from mamma_kit.core.manifest import FileHasher, StageManifest, producer
 
 
 def _sync(videos: dict[str, Path], out_path: Path, plot_dir: Path | None, method: str | None, reference: str | None,
-          settings: dict, clap_positions, mic_positions, hashes: dict, command: str, motion=None) -> dict:
+          settings: dict, clap_positions, mic_positions, hashes: dict, command: str, motion=None,
+          flash_cache: Path | None = None) -> dict:
     from mamma_kit.core.timingfile import write_timing
     from mamma_kit.timing.plots import plot_sync
     from mamma_kit.timing.sync import sync_videos
     from mamma_kit.timing.timeline import write_timeline
 
     chosen = method or settings.get("method", "auto")
-    res = sync_videos(videos, chosen, reference, settings, clap_positions, mic_positions, motion)
+    res = sync_videos(videos, chosen, reference, settings, clap_positions, mic_positions, motion, flash_cache)
     write_timing(out_path, res.clocks, res.reference, res.method, diagnostics=res.diagnostics,
                  camera_diagnostics=res.camera_diagnostics, producer=producer(command, hashes))
     timeline_path = write_timeline(out_path.with_name(f"{out_path.stem}_timeline.npz"), res.clocks, res.frame_times,
@@ -43,18 +44,30 @@ def _clap_settings(settings: dict) -> tuple[dict, object]:
     return settings, cp
 
 
+def _overrides(timestamps: Path | None, exposure_ms: float | None) -> dict:
+    over: dict = {"timestamps": str(Path(timestamps).resolve())} if timestamps else {}
+    if exposure_ms is not None:
+        over["flash"] = {"exposure_s": float(exposure_ms) * 1e-3}
+    return over
+
+
 def sync_files(videos: dict[str, Path], out_path: Path, *, method: str | None = None, reference: str | None = None,
-               preset: str | None = None, plots: bool = True, timestamps: Path | None = None) -> dict:
+               preset: str | None = None, plots: bool = True, timestamps: Path | None = None,
+               exposure_ms: float | None = None) -> dict:
     """Synchronise video files (no workspace): timing.toml at ``out_path``."""
     from mamma_kit.timing.sync import load_settings
 
-    settings, cp = _clap_settings(load_settings(preset, {"timestamps": str(timestamps)} if timestamps else {}))
+    settings, cp = _clap_settings(load_settings(preset, _overrides(timestamps, exposure_ms)))
     if cp is not None:
         log.warn("clap_positions need a workspace with calibration.toml: sound travel is not corrected")
     hasher = FileHasher(None)
     plot_dir = out_path.parent / f"{out_path.stem}_plots" if plots else None
     return _sync(videos, out_path, plot_dir, method, reference, settings, None, None,
                  {n: hasher(p) for n, p in videos.items()}, "sync " + " ".join(str(p) for p in videos.values()))
+
+
+def _has_motion_inputs(ws, cams: list[str]) -> bool:
+    return ws.calibration.is_file() and all(ws.keypoints_file(c).is_file() for c in cams)
 
 
 def _motion_inputs(ws, cams: list[str]):
@@ -74,7 +87,8 @@ def _motion_inputs(ws, cams: list[str]):
 
 
 def run_sync(ws, *, method: str | None = None, reference: str | None = None, preset: str | None = None,
-             plots: bool = True, force: bool = False, out: Path | None = None, timestamps: Path | None = None) -> dict:
+             plots: bool = True, force: bool = False, out: Path | None = None, timestamps: Path | None = None,
+             exposure_ms: float | None = None) -> dict:
     """The workspace stage: every camera's clock model -> ws.timing (timing_timeline.npz beside
     it). ``out``: write another timing file instead (e.g. one method's result to compare), with
     no caching and its plots in <out stem>_plots/."""
@@ -83,6 +97,8 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
     cap = ws.load_capture()
     videos = {n: e.video for n, e in cap.cameras.items()}
     over = dict(cap.stage_settings("sync"))
+    if exposure_ms is not None:
+        over["flash"] = dict(over.get("flash", {})) | {"exposure_s": float(exposure_ms) * 1e-3}
     if timestamps is not None:
         over["timestamps"] = str(Path(timestamps).resolve())
     elif over.get("timestamps"):
@@ -102,9 +118,12 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
         else:
             inputs.append(ws.calibration)
     motion = None
-    if (method or settings.get("method")) == "motion":
+    chosen = method or settings.get("method")
+    # auto uses motion when the workspace has what it needs (track + keypoints were run)
+    if chosen == "motion" or (chosen == "auto" and _has_motion_inputs(ws, list(videos))):
         motion = _motion_inputs(ws, list(videos))
         inputs += [ws.keypoints_file(c) for c in videos]
+    flash_cache = ws.cache_dir / "flash"
     if cp is not None and mic_positions is None:
         log.warn("clap_positions given but no calibration.toml with every camera: sound travel is not corrected")
         cp = None
@@ -113,7 +132,7 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
         hasher = FileHasher(None)
         res = _sync(videos, out, out.parent / f"{out.stem}_plots" if plots else None, method, reference, settings, cp,
                     mic_positions, {ws.relative(p): hasher(p) for p in inputs}, f"sync {ws.root.name} --out {out.name}",
-                    motion)
+                    motion, flash_cache)
         return {"stage": "sync", "skipped": False, "reason": "--out", **res}
     key = {"method": method, "reference": reference, "preset": preset, "settings": settings, "clap_positions": cp,
            "plots": plots}
@@ -133,7 +152,7 @@ def run_sync(ws, *, method: str | None = None, reference: str | None = None, pre
     t0 = time.perf_counter()
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
     out = _sync(videos, ws.timing, ws.report_dir / "sync" if plots else None, method, reference, settings, cp,
-                mic_positions, hashes, f"sync {ws.root.name}", motion)
+                mic_positions, hashes, f"sync {ws.root.name}", motion, flash_cache)
     secs = time.perf_counter() - t0
     manifest.record(inputs, key, [ws.timing, timeline], {"method": out.get("method")}, secs)
     return {"stage": "sync", "skipped": False, "reason": state.reason, "seconds": round(secs, 2), **out}

@@ -6,9 +6,15 @@
 - ``clap``: claps heard by the cameras (onsets + GCC-PHAT + joint solve), optionally
   corrected for sound travel when clap and microphone positions are known.
 - ``tmcd``: the start timecode of each file (whole frame, no drift).
-- ``auto``: every method the files allow; the most precise one that works on every camera
-  wins (ltc > clap > tmcd); the others cross-check it: clap vs LTC beyond tolerance is an
-  error, tmcd vs audio beyond a frame is a warning.
+- ``flash``: a light switched on or a torch flashed in view of every camera (timing.flash).
+- ``motion``: the people's keypoints and the calibration (timing.motion; a workspace after
+  track + keypoints).
+- ``synced`` / ``timestamps``: cameras on one clock, or a file of every frame's time (timing.given).
+- ``auto``: every method the files allow (the timestamps file when given, LTC and claps when
+  there is audio, tmcd, flash, and motion when the workspace has keypoints and a calibration);
+  the most precise one that works on every camera wins (AUTO_ORDER); the others cross-check it
+  at the times they share evidence: a disagreement beyond tolerance is an error, tmcd beyond a
+  frame a warning; diagnostics["agreement"] sums it up per method pair.
 All clocks are relative to the reference camera (offset 0, rate 0).
 """
 
@@ -32,14 +38,20 @@ from mamma_kit.timing.fit import relative_clock
 from mamma_kit.timing.ltc import LtcClock, find_ltc_channel, looks_like_ltc, ltc_clock
 from mamma_kit.timing.tmcd import TmcdClock, tmcd_clock
 
-METHODS = ("auto", "clap", "ltc", "tmcd", "synced", "timestamps", "motion")
+METHODS = ("auto", "clap", "ltc", "tmcd", "synced", "timestamps", "motion", "flash")
+# auto's preference where several methods work on every camera: a logged clock, then LTC (sub-sample),
+# claps (sub-millisecond), a flash (a few ms), motion (a few ms, needs people), tmcd (whole frames)
+AUTO_ORDER = ("timestamps", "ltc", "clap", "flash", "motion", "tmcd")
 PRESET_DIR = Path(__file__).resolve().parents[2] / "sync"
 
 DEFAULTS: dict = {
     "method": "auto",
     "clap": {},
     "ltc": {"fps": 0.0, "min_fraction": 0.5},
-    "check": {"agreement_tolerance_ms": 5.0, "max_travel_ms": 30.0, "estimated_travel_ms": 10.0},
+    "flash": {"exposure_s": 0.0, "gamma": 2.2, "min_snr": 8.0},
+    # what each method's offsets may be off by, added to the agreement tolerance when it is compared
+    "check": {"agreement_tolerance_ms": 5.0, "max_travel_ms": 30.0, "estimated_travel_ms": 10.0,
+              "flash_tolerance_ms": 4.0, "motion_tolerance_ms": 4.0},
     # a CSV of every frame's time on the rig's clock (method "timestamps"; auto uses it when given)
     "timestamps": "",
 }
@@ -144,8 +156,11 @@ def _check_audible(m: CameraMedia) -> None:
 # ---------------------------------------------------------------------------------------
 def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str | None = None,
                 settings: Mapping | None = None, clap_positions=None,
-                mic_positions: Mapping[str, np.ndarray] | None = None, motion=None) -> SyncResult:
-    """``motion``: (keypoints per camera, rig) for --method motion (the workspace stage loads them)."""
+                mic_positions: Mapping[str, np.ndarray] | None = None, motion=None,
+                flash_cache: Path | None = None) -> SyncResult:
+    """``motion``: (keypoints per camera, rig) for --method motion, and for auto when the workspace
+    has them (the workspace stage loads them). ``flash_cache``: a folder keeping each video's
+    brightness signal (decoding is the slow part of flash sync; kept when a later step fails)."""
     st = load_settings(None, settings)
     if method not in METHODS:
         raise UserError(f"unknown sync method '{method}'", f"use one of {', '.join(METHODS)}")
@@ -156,13 +171,11 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
     if reference not in videos:
         raise UserError(f"reference camera '{reference}' is not among {', '.join(names)}",
                         "pass one of those names to --reference")
-    if method == "auto" and st.get("timestamps"):
-        method = "timestamps"
     if method == "timestamps" and not st.get("timestamps"):
         raise UserError("--method timestamps needs the file of frame times", "pass --timestamps FILE")
     media = load_media(videos, need_audio=method in ("auto", "clap", "ltc"))
-    if method in ("synced", "timestamps", "motion"):
-        return _given(media, method, reference, st, motion)
+    if method in ("synced", "timestamps", "motion", "flash"):
+        return _given(media, method, reference, st, motion, flash_cache)
     warnings: list[str] = []
     by_method: dict[str, dict[str, ClockModel]] = {}
     failures: dict[str, UserError] = {}
@@ -241,18 +254,38 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
         for n in names:
             cam_diag[n]["tmcd"] = {"timecode": tmcd_res[n].timecode, "fps": tmcd_res[n].fps_name}
 
+    # --- the methods that need no audio (auto tries each the files allow)
+    evidence: dict[str, dict[str, list[float]]] = {}
+    if method == "auto":
+        tried = (["timestamps"] if st.get("timestamps") else []) + ["flash"] + (["motion"] if motion is not None else [])
+        for k in tried:
+            try:
+                clocks_k, diag_k, warn_k = _video_method(media, k, reference, st, motion, flash_cache)
+            except UserError as e:
+                failures[k] = e
+                continue
+            by_method[k] = clocks_k
+            warnings.extend(warn_k)
+            for n in names:
+                cam_diag[n][k] = diag_k.get(n, {})
+            if k == "flash":  # flash offsets are exact at the flashes (drift aside)
+                evidence["flash"] = {n: [f["t_s"] for f in diag_k[n]["flashes"]] for n in names}
+        if "motion" not in tried:
+            failures["motion"] = UserError("no keypoints/ and calibration.toml in the workspace")
+
     # --- choose
-    order = [method] if method != "auto" else ["ltc", "clap", "tmcd"]
+    order = [method] if method != "auto" else list(AUTO_ORDER)
     chosen = next((k for k in order if k in by_method), None)
     if chosen is None:
         reasons = "; ".join(f"{k}: {e.message}" for k, e in failures.items())
         raise UserError(f"no sync method worked on every camera ({reasons or 'no audio and no timecode'})",
-                        "record a clap or LTC on every camera's audio, or timecode (tmcd)")
+                        "record a clap or LTC on every camera's audio, timecode (tmcd), or flash a light in view "
+                        "of every camera; or sync by --method synced / --timestamps FILE for a rig on one clock")
     clocks = {n: copy.deepcopy(c) for n, c in by_method[chosen].items()}
     clocks[reference] = ClockModel(0.0, 0.0, chosen, 1.0)
 
     # --- agreement between methods
-    agreement = _agreement(by_method, media, chosen, st["check"], clap_res, warnings, reference)
+    agreement = _agreement(by_method, media, chosen, st["check"], clap_res, warnings, reference, evidence)
     for n in names:
         c = clocks[n]
         cam_diag[n]["offset_ms"] = round(c.offset * 1e3, 6)
@@ -266,6 +299,14 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
         log.info(f"{k} not used: {msg}")
     diag = {"methods_tried": sorted(set(by_method) | set(failures)), "methods_ok": sorted(by_method),
             "chosen": chosen}
+    summary = agreement_summary(agreement)
+    if summary:
+        diag["agreement"] = summary
+        for pair, d in summary.items():
+            log.info(f"{pair}: the clocks agree within {d['max_abs_ms']:.3f} ms (rms {d['rms_ms']:.3f} ms, "
+                     f"{d['cameras']} cameras)")
+    if method == "auto":
+        log.info(f"sync: {chosen} chosen of {', '.join(sorted(by_method))} (auto order: {' > '.join(AUTO_ORDER)})")
     if clap_res is not None:
         diag["clap"] = clap_res.diagnostics
     if warnings:
@@ -276,24 +317,47 @@ def sync_videos(videos: Mapping[str, Path], method: str = "auto", reference: str
                       {n: m.timestamps for n, m in media.items()})
 
 
-def _given(media: Mapping[str, CameraMedia], method: str, reference: str, st: Mapping, motion=None) -> SyncResult:
-    """Clocks without audio: one shared clock, a file of every frame's time, or the people's motion."""
+def _video_method(media: Mapping[str, CameraMedia], method: str, reference: str, st: Mapping, motion=None,
+                  flash_cache: Path | None = None) -> tuple[dict[str, ClockModel], dict, list[str]]:
+    """One method that needs no audio -> (clocks, per-camera diagnostics, warnings)."""
     from mamma_kit.timing.given import synced_clocks, timestamp_clocks
 
     stamps = {n: m.timestamps for n, m in media.items()}
-    warnings: list[str] = []
     if method == "synced":
-        clocks, cam_diag, warnings = synced_clocks(stamps)
-    elif method == "motion":
+        return synced_clocks(stamps)
+    if method == "motion":
         from mamma_kit.timing.motion import motion_clocks
 
         if motion is None:
             raise UserError("--method motion needs a workspace with keypoints/ and calibration.toml",
                             "run `mamma-kit sync WORKSPACE --method motion` after `track` and `keypoints`")
         kts, rig = motion
-        clocks, cam_diag, warnings = motion_clocks(kts, rig, reference, float(st.get("motion_max_lag_s", 2.0)))
-    else:
-        clocks, cam_diag = timestamp_clocks(stamps, Path(st["timestamps"]), reference)
+        return motion_clocks(kts, rig, reference, float(st.get("motion_max_lag_s", 2.0)))
+    if method == "flash":
+        return _run_flash(media, reference, st.get("flash", {}), flash_cache)
+    clocks, cam_diag = timestamp_clocks(stamps, Path(st["timestamps"]), reference)
+    return clocks, cam_diag, []
+
+
+def _run_flash(media, reference, cfg, cache_dir) -> tuple[dict[str, ClockModel], dict, list[str]]:
+    from mamma_kit.core.manifest import FileHasher
+    from mamma_kit.timing.flash import flash_clocks, load_signal
+
+    hasher = FileHasher(None) if cache_dir is not None else None
+    gamma = float(cfg.get("gamma", 2.2))
+    signals = {}
+    for n, m in log.track(list(media.items()), "flash: reading brightness"):
+        cache = Path(cache_dir) / f"{n}.npz" if cache_dir is not None else None
+        signals[n] = load_signal(m.path, cache, hasher(m.path) if hasher else None, gamma)
+    return flash_clocks(signals, reference, cfg, {n: m.path.name for n, m in media.items()})
+
+
+def _given(media: Mapping[str, CameraMedia], method: str, reference: str, st: Mapping, motion=None,
+           flash_cache: Path | None = None) -> SyncResult:
+    """Clocks without audio: one shared clock, a file of every frame's time, a flash, or the
+    people's motion."""
+    stamps = {n: m.timestamps for n, m in media.items()}
+    clocks, cam_diag, warnings = _video_method(media, method, reference, st, motion, flash_cache)
     for w in warnings:
         log.warn(w)
     diag = {"methods_tried": [method], "methods_ok": [method], "chosen": method}
@@ -355,10 +419,12 @@ def _run_clap(media, reference, cfg, ltc_channels, clap_positions, mic_positions
     return clap_sync(tracks, reference, st, clap_positions, mic_positions)
 
 
-def _agreement(by_method, media, chosen, check, clap_res, warnings, reference) -> dict[str, dict]:
-    """Per camera: mapping difference (ms) between each other method and the chosen one, at
-    mid-take (at the claps when claps are involved)."""
+def _agreement(by_method, media, chosen, check, clap_res, warnings, reference, evidence=None) -> dict[str, dict]:
+    """Per camera: mapping difference (ms) between each other method and the chosen one, where
+    their evidence lies: at the claps when claps are involved, at the flashes when a flash is,
+    else at mid-take."""
     out: dict[str, dict] = {}
+    evidence = dict(evidence or {})
     base = by_method[chosen]
     tol = float(check.get("agreement_tolerance_ms", 5.0))
     # what the clap offsets may still carry of the sound's travel: nothing with known clap
@@ -367,6 +433,11 @@ def _agreement(by_method, media, chosen, check, clap_res, warnings, reference) -
     where = clap_res.diagnostics.get("clap_positions") if clap_res is not None else None
     travel = 0.0 if where == "known" else float(check.get("estimated_travel_ms", 10.0)) if where == "estimated" \
         else float(check.get("max_travel_ms", 30.0))
+    if clap_res is not None:
+        evidence["clap"] = {n: [o.t_i if o.i == n else o.t_j for o in clap_res.observations if n in (o.i, o.j)]
+                            for n in media}
+    # the looser methods' own allowance
+    allow = {"flash": float(check.get("flash_tolerance_ms", 4.0)), "motion": float(check.get("motion_tolerance_ms", 4.0))}
     for k, cl in by_method.items():
         if k == chosen:
             continue
@@ -374,24 +445,35 @@ def _agreement(by_method, media, chosen, check, clap_res, warnings, reference) -
             if n == reference:
                 continue
             tm = float(np.median(m.timestamps))
-            if "clap" in (k, chosen) and clap_res is not None:
-                # compare where the claps give evidence (one clap: no drift, exact only there)
-                t_ev = [o.t_i if o.i == n else o.t_j for o in clap_res.observations if n in (o.i, o.j)]
-                tm = float(np.median(t_ev)) if t_ev else tm
+            for src in ("clap", "flash"):
+                if src in (k, chosen) and evidence.get(src, {}).get(n):
+                    # compare where that method gives evidence (one clap or flash: no drift, exact only there)
+                    tm = float(np.median(evidence[src][n]))
+                    break
             diff_ms = float(cl[n].to_ref(tm) - base[n].to_ref(tm)) * 1e3
             out.setdefault(n, {})[f"{k}-{chosen}"] = round(diff_ms, 4)
             if "tmcd" in (k, chosen):
                 frame_ms = 1e3 / max(m.nominal_fps, 1.0)
-                lim = frame_ms + (travel if "clap" in (k, chosen) else 0.0)
+                lim = frame_ms + (travel if "clap" in (k, chosen) else 0.0) + sum(allow.get(x, 0.0) for x in (k, chosen))
                 if abs(diff_ms) > lim:
                     warnings.append(f"{n}: tmcd and {chosen if k == 'tmcd' else k} disagree by {diff_ms:+.1f} ms "
                                     f"(more than a frame, {frame_ms:.1f} ms): the start timecode is not to be trusted")
             else:
-                lim = tol + travel
+                lim = tol + (travel if "clap" in (k, chosen) else 0.0) + sum(allow.get(x, 0.0) for x in (k, chosen))
                 if abs(diff_ms) > lim:
                     raise UserError(
                         f"{k} and {chosen} clocks disagree on {n} by {diff_ms:+.2f} ms (tolerance {lim:.1f} ms)",
-                        "check that all timecode boxes were jammed from one source and the claps were heard by "
-                        "every camera, then pick one method with --method ltc|clap (or raise "
+                        "check that all timecode boxes were jammed from one source, the claps were heard and the "
+                        "flash seen by every camera, then pick one method with --method (or raise "
                         "check.agreement_tolerance_ms in the preset)")
     return out
+
+
+def agreement_summary(agreement: Mapping[str, Mapping[str, float]]) -> dict[str, dict]:
+    """Per method pair ("flash-clap"): the largest and rms difference over the cameras (ms)."""
+    pairs: dict[str, list[float]] = {}
+    for per in agreement.values():
+        for pair, ms in per.items():
+            pairs.setdefault(pair, []).append(float(ms))
+    return {p: {"max_abs_ms": round(float(np.max(np.abs(v))), 4), "rms_ms": round(float(np.sqrt(np.mean(np.square(v)))), 4),
+                "cameras": len(v)} for p, v in pairs.items()}
