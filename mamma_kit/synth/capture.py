@@ -132,6 +132,8 @@ def _render_audio(recipe: Recipe, cams: list[SynthCamera]) -> dict:
     and LTC on one channel when the recipe asks."""
     from mamma_kit.synth import audio as sa
 
+    if not recipe.audio.get("enabled", True):  # videos without an audio stream
+        return {}
     sr = int(recipe.audio["sample_rate"])
     mics = {c.camera.name: sa.Microphone(position=tuple(c.camera.center), clock=c.clock,
                                          audio_start_s=c.audio_start_s,

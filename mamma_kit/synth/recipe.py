@@ -47,6 +47,7 @@ Ranges written as ``[lo, hi]`` are sampled per camera/person from the recipe's s
     area_m = 3.0                # people move within this square
 
     [audio]
+    enabled = true              # false: videos without an audio stream
     sample_rate = 48000
     codec = "aac"               # aac | pcm (pcm writes .mov)
     snr_db = 30.0
@@ -287,6 +288,8 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
     audio.num("snr_db", 30.0, lo=-20, hi=120)
     audio.num("rt60_s", 0.0, lo=0, hi=3)
     audio.string("reverb", "none", ("none", "weak", "strong"))
+    if not isinstance(audio.data.get("enabled", True), bool):
+        raise audio.err("enabled", "expected true or false")
     claps = []
     for i, c in enumerate(audio.data.get("claps", [])):
         cf = _Fields(c, f"audio.claps[{i}].")

@@ -39,10 +39,14 @@ MIN_SNR = 8.0
 # ... and at least this fraction of the take's largest jump (moving people and auto exposure make
 # smaller steps)
 STEP_FRACTION = 0.25
+# ... and at least this fraction of the image's mean (linear) brightness: a compressed static scene
+# can have almost no frame-to-frame noise, and a torch lights a good part of the view
+MIN_RELATIVE_STEP = 0.02
 # a cell whose grey level reaches this in any frame around the step is left out (clipped)
 SATURATED = 250
-# partial fractions outside (F_LO, F_HI) are too close to a level to time anything
-F_LO, F_HI = 0.04, 0.96
+# a partial fraction must be this many of its noise's standard deviations, and F_EDGE, from 0 and 1 (video
+# encoders leave a few per cent of a frame's brightening in rows the light did not reach)
+F_SIGMAS, F_EDGE = 4.0, 0.1
 # drift is fitted when matched flashes span at least this long
 DRIFT_MIN_SPAN_S = 20.0
 DEFAULTS = {"exposure_s": 0.0, "readout_s": None, "gamma": 2.2, "min_snr": MIN_SNR}
@@ -119,13 +123,15 @@ def robust_sd(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(x - np.median(x)))) if len(x) else 0.0
 
 
-def find_steps(b_t: np.ndarray, min_snr: float = MIN_SNR) -> tuple[list[tuple[int, int, int]], float, float]:
+def find_steps(b_t: np.ndarray, min_snr: float = MIN_SNR) -> tuple[list[tuple[int, int, int]], float, float, float]:
     """Steps of the brightness signal: [(first jump i0, last jump i1, sign)] where jump i is
-    b[i + 1] - b[i]; also the noise (robust sd of the jumps) and the largest jump's SNR."""
+    b[i + 1] - b[i]; also the noise (robust sd of the jumps), the largest jump's SNR and its
+    fraction of the mean brightness."""
     d_t = np.diff(b_t)
-    noise = max(robust_sd(d_t), 1e-7 * max(float(np.median(b_t)), 1e-6))
+    level = max(float(np.median(b_t)), 1e-6)
+    noise = max(robust_sd(d_t), 1e-7 * level)
     top = float(np.abs(d_t).max()) if len(d_t) else 0.0
-    thr = max(min_snr * noise, STEP_FRACTION * top)
+    thr = max(min_snr * noise, STEP_FRACTION * top, MIN_RELATIVE_STEP * level)
     big = np.flatnonzero(np.abs(d_t) > thr)
     steps: list[tuple[int, int, int]] = []
     for i in big:
@@ -143,7 +149,7 @@ def find_steps(b_t: np.ndarray, min_snr: float = MIN_SNR) -> tuple[list[tuple[in
         while i1 < len(d_t) - 1 and s * d_t[i1 + 1] > weak:
             i1 += 1
         out.append((i0, i1, s))
-    return out, noise, top / noise
+    return out, noise, top / noise, top / level
 
 
 def time_step(sig: FlashSignal, i0: int, i1: int, sign: int, lo: int, hi: int, exposure_s: float | None,
@@ -160,9 +166,10 @@ def time_step(sig: FlashSignal, i0: int, i1: int, sign: int, lo: int, hi: int, e
     pre_rc = np.median(lum[pre], axis=0)
     post_rc = np.median(lum[post], axis=0)
     dl_rc = post_rc - pre_rc
-    # per-cell noise: the spread of the before-frames about their level (or of the jumps)
-    cell_noise = robust_sd((lum[pre] - pre_rc).ravel()) if len(pre) > 1 else 0.0
-    cell_noise = max(cell_noise, robust_sd(np.diff(lum[max(lo, 0):i0 + 1], axis=0).ravel()) / np.sqrt(2), 1e-6)
+    # per-cell noise: the frame-to-frame differences of the steady frames before (else after) the step
+    steady = pre if len(pre) > 1 else post
+    cell_noise = robust_sd(np.diff(lum[steady], axis=0).ravel()) / np.sqrt(2) if len(steady) > 1 else 0.0
+    cell_noise = max(cell_noise, 1e-6)
     window = np.r_[pre, obs_k, post]
     clipped_rc = sig.sat_trc[window].any(axis=0)
     # cells a person walks through change without the light: steady before and after, or left out
@@ -182,15 +189,21 @@ def time_step(sig: FlashSignal, i0: int, i1: int, sign: int, lo: int, hi: int, e
     dl_r = np.sqrt((np.where(use_rc, dl_rc ** 2, 0.0)).sum(axis=1) / np.maximum(n_r, 1))
     energy_r = np.where(rows_ok, n_r * dl_r ** 2, 0.0)
     y_r = (np.arange(lum.shape[1]) + 0.5) / lum.shape[1]
-    part = (f_kr > F_LO) & (f_kr < F_HI) & rows_ok[None]
+    # observation noise of the fraction per row band: the cells' noise over the band's step
+    sd_f_r = 1.25 * cell_noise / np.sqrt(np.maximum(energy_r, 1e-30))
+    for edge in (F_EDGE, 0.2 * F_EDGE):  # near a level only when no frame shows more of the step
+        edge_r = np.maximum(F_SIGMAS * sd_f_r, edge)
+        part = longest_runs((f_kr > edge_r) & (f_kr < 1 - edge_r) & rows_ok[None])
+        if part.any():
+            break
     kk, rr = np.nonzero(part)
     t_k = sig.times[obs_k]
     e0 = exposure_s if exposure_s else 0.5 * period
     r0 = readout_s if readout_s is not None else 0.0
-    # observation noise in time: the fraction's noise over the row band's signal, times the exposure
-    sd_f_r = 1.25 * cell_noise / np.sqrt(np.maximum(energy_r, 1e-30))
     if len(kk) == 0:
         # no partly lit row: the light changed between two exposures of the middle row
+        if not rows_ok.any():
+            return None
         last_pre = int(np.max(np.flatnonzero((f_kr[:, rows_ok].mean(axis=1) < 0.5)), initial=0))
         k = min(last_pre, len(obs_k) - 2)
         t = 0.5 * (t_k[k] + t_k[k + 1])
@@ -234,9 +247,23 @@ def time_step(sig: FlashSignal, i0: int, i1: int, sign: int, lo: int, hi: int, e
                        "fraction_residual_rms": round(float(np.sqrt(np.mean(res[keep] ** 2))), 5)})
 
 
+def longest_runs(part_kr: np.ndarray) -> np.ndarray:
+    """Per frame, only the longest run of consecutive partly lit rows: a rolling shutter lights rows in
+    order, so a lone row elsewhere is a moving person or the encoder, not the light."""
+    from scipy import ndimage
+
+    out = np.zeros_like(part_kr)
+    for k, row in enumerate(part_kr):
+        lab, n = ndimage.label(row)
+        if n:
+            sizes = np.bincount(lab)[1:]
+            out[k] = lab == 1 + int(np.argmax(sizes))
+    return out
+
+
 def camera_events(sig: FlashSignal, cfg: Mapping) -> tuple[list[FlashEvent], dict]:
     """Every flash step in one camera's signal, timed (module docstring, steps 2-3)."""
-    steps, noise, snr_top = find_steps(sig.b_t, float(cfg.get("min_snr", MIN_SNR)))
+    steps, noise, snr_top, rel_top = find_steps(sig.b_t, float(cfg.get("min_snr", MIN_SNR)))
     exposure = float(cfg.get("exposure_s") or 0.0) or None
     readout = cfg.get("readout_s")
     readout = None if readout in (None, "") else float(readout)
@@ -249,7 +276,8 @@ def camera_events(sig: FlashSignal, cfg: Mapping) -> tuple[list[FlashEvent], dic
         if ev is not None:
             ev.snr = float(abs(d_t[i0:i1 + 1].sum()) / noise)
             events.append(ev)
-    return events, {"noise": noise, "largest_jump_snr": round(float(snr_top), 2), "steps": len(steps)}
+    return events, {"noise": noise, "largest_jump_snr": round(float(snr_top), 2),
+                    "largest_jump_percent": round(100 * float(rel_top), 2), "steps": len(steps)}
 
 
 def match_events(ref: list[FlashEvent], cam: list[FlashEvent], period: float, max_rate: float = 300e-6
@@ -285,7 +313,8 @@ def match_events(ref: list[FlashEvent], cam: list[FlashEvent], period: float, ma
 
 def flash_clocks(signals: Mapping[str, FlashSignal], reference: str, cfg: Mapping | None = None,
                  names: Mapping[str, str] | None = None) -> tuple[dict[str, ClockModel], dict, list[str]]:
-    """Every camera's clock relative to ``reference`` from its flashes.
+    """Every camera's clock relative to ``reference`` from its flashes. ``cfg``: DEFAULTS' keys;
+    exposure_s (0: unknown) and readout_s (absent: unknown) may be tables camera -> seconds.
     ``names``: camera -> the file name to say in messages. -> (clocks, per-camera diagnostics, warnings)."""
     from mamma_kit.timing.fit import robust_line
 
@@ -293,18 +322,23 @@ def flash_clocks(signals: Mapping[str, FlashSignal], reference: str, cfg: Mappin
     names = dict(names or {})
     found, diag = {}, {}
     for n, sig in signals.items():
-        evs, info = camera_events(sig, cfg)
+        # exposure and readout: one for all cameras, or a table camera -> seconds
+        own = {k: (v.get(n) if isinstance(v, Mapping) else v) for k, v in cfg.items()}
+        evs, info = camera_events(sig, own)
         found[n] = evs
         diag[n] = {"flashes": [{"t_s": round(e.t, 6), "sign": "on" if e.sign > 0 else "off",
                                 "snr": round(e.snr, 1), "precision_ms": round(e.precision_s * 1e3, 3),
                                 "frames": e.frames, "observations": e.observations,
                                 "exposure_ms": round(e.exposure_s * 1e3, 3), "readout_ms": round(e.readout_s * 1e3, 3),
-                                **e.info} for e in evs], "largest_jump_snr": info["largest_jump_snr"]}
+                                **e.info} for e in evs], "largest_jump_snr": info["largest_jump_snr"],
+                   "largest_jump_percent": info["largest_jump_percent"]}
     missing = [n for n in signals if not found[n]]
     if missing:
         seen = [n for n in signals if found[n]]
-        why = "; ".join(f"{names.get(n, n)}: largest brightness jump {diag[n]['largest_jump_snr']:.1f}x the "
-                        f"frame-to-frame noise (a flash needs {float(cfg['min_snr']):.0f}x)" for n in missing)
+        why = "; ".join(f"{names.get(n, n)}: its largest brightness jump is {diag[n]['largest_jump_snr']:.1f}x the "
+                        f"frame-to-frame noise and {diag[n]['largest_jump_percent']:.2f} % of the image's brightness "
+                        f"(a flash needs {float(cfg['min_snr']):.0f}x and {100 * MIN_RELATIVE_STEP:.0f} %)"
+                        for n in missing)
         raise UserError(f"no flash found in {', '.join(names.get(n, n) for n in missing)} ({why}"
                         + (f"; seen by {', '.join(seen)}" if seen else "") + ")",
                         "switch a light on or flash a phone torch where every camera sees it light a good part of "

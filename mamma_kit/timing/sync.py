@@ -460,7 +460,12 @@ def _agreement(by_method, media, chosen, check, clap_res, warnings, reference, e
                                     f"(more than a frame, {frame_ms:.1f} ms): the start timecode is not to be trusted")
             else:
                 lim = tol + (travel if "clap" in (k, chosen) else 0.0) + sum(allow.get(x, 0.0) for x in (k, chosen))
-                if abs(diff_ms) > lim:
+                if abs(diff_ms) > lim and {k, chosen} & set(allow):
+                    # a flash or motion cross-check can be fooled by the scene (a lamp, auto exposure, a
+                    # wrong person pairing): said, not fatal
+                    warnings.append(f"{n}: {k} and {chosen} disagree by {diff_ms:+.2f} ms (tolerance {lim:.1f} ms): "
+                                    f"check that camera's {k if k in allow else chosen} diagnostics")
+                elif abs(diff_ms) > lim:
                     raise UserError(
                         f"{k} and {chosen} clocks disagree on {n} by {diff_ms:+.2f} ms (tolerance {lim:.1f} ms)",
                         "check that all timecode boxes were jammed from one source, the claps were heard and the "
