@@ -62,3 +62,28 @@ def test_motion_sync_without_motion_says_so():
         kt.xy[:] = kt.xy[:1]
     with pytest.raises(UserError, match="too little shared motion"):
         motion_clocks(kts, rig, "cam0")
+
+
+def test_motion_sync_finds_drift_over_a_long_take_with_gaps():
+    """A minute recorded in three bursts (the timestamps jump between them): the offset and drift of
+    each camera from the windows, never interpolating across a gap."""
+    rig = make_ring_rig(3, size=(960, 540), f=800.0)
+    truth = {"cam0": (0.0, 0.0), "cam1": (0.0123, 30e-6), "cam2": (-0.0571, -20e-6)}  # t_ref = (1 + r) t + o
+    rng = np.random.default_rng(0)
+    kts = {}
+    for cam in rig:
+        o, r = truth[cam.name]
+        t = np.sort(np.arange(0, 60, 1 / 15) + rng.normal(0, 0.0005, 900))
+        t = t[(t < 4) | ((t > 28) & (t < 32)) | (t > 56)]
+        J = moving_people((1 + r) * t + o, np.random.default_rng(123))
+        kt = KeypointTracks.empty(cam.name, cam.size, t, np.arange(2))
+        kt.valid[:] = True
+        kt.xy[:] = np.stack([cam.project(J[p]) for p in range(2)], 1) + rng.normal(0, 0.5, (len(t), 2, 33, 2))
+        kt.visibility[:] = 1.0
+        kts[cam.name] = kt
+    clocks, diag, notes = motion_clocks(kts, rig, "cam0")
+    assert not notes
+    for n, (o, r) in truth.items():
+        assert clocks[n].offset == pytest.approx(o, abs=0.002), n
+        assert clocks[n].rate == pytest.approx(r, abs=10e-6), n  # the issue asks 10 ppm over 2 minutes
+    assert diag["cam1"]["pairs"]["cam0-cam1"]["drift"]["windows_s"] == pytest.approx([2.0, 30.0, 58.0], abs=0.1)

@@ -11,8 +11,12 @@ the calibrated rig. For each camera against the reference:
 3. sub-frame offset: the offset that minimises the paired keypoints' robust symmetric epipolar
    distance (in box heights), the other view's keypoints interpolated at each frame's own
    timestamp (variable frame rate); a scan at a tenth of a frame, then a bounded 1-D minimisation;
-4. drift: on takes long enough, step 3 in windows, and a line through the windows' offsets.
+4. drift: on takes of DRIFT_MIN_TAKE_S or more, step 3 in windows of DRIFT_WINDOW_S (split at gaps
+   in the timestamps too), a weighted line through the windows' offsets per camera pair, and every
+   camera's rate and offset from all pairs jointly, like the offsets.
 Confidence per camera: how much deeper the minimum is than the residual 0.1 s away.
+Frames further apart than GAP_PERIODS frame periods (a pause in recording, or a capture rendered
+in windows) are never interpolated across.
 """
 
 from __future__ import annotations
@@ -49,6 +53,9 @@ DRIFT_MIN_TAKE_S = 40.0
 # frames is dropped
 LOOP_TOLERANCE_FRAMES = 1.0
 DRIFT_WINDOW_S = 15.0
+# a drift window needs at least this much of the take
+DRIFT_MIN_WINDOW_S = 2.0
+GAP_PERIODS = 2.5
 
 
 @contextmanager
@@ -83,16 +90,22 @@ class View:
         """Keypoints and heights linearly interpolated at own-clock times t (N,): (N, K, J, 2), (N, K)."""
         i1 = np.clip(np.searchsorted(self.times, t), 1, len(self.times) - 1)
         i0 = i1 - 1
-        w = ((t - self.times[i0]) / np.maximum(self.times[i1] - self.times[i0], 1e-9))
-        inside = (t >= self.times[0]) & (t <= self.times[-1])
+        step = self.times[i1] - self.times[i0]
+        w = ((t - self.times[i0]) / np.maximum(step, 1e-9))
+        inside = (t >= self.times[0]) & (t <= self.times[-1]) & (step <= GAP_PERIODS * self.period)
         xy = (1 - w)[:, None, None, None] * self.xy[i0] + w[:, None, None, None] * self.xy[i1]
         h = (1 - w)[:, None] * self.height[i0] + w[:, None] * self.height[i1]
         xy[~inside] = np.nan
         return xy, h
 
+    @property
+    def period(self) -> float:
+        return float(np.median(np.diff(self.times))) if len(self.times) > 1 else 1.0
+
     def motion(self) -> np.ndarray:
         """(T,) summed limb-joint speed in box heights per second (0 where nothing is tracked)."""
         dt = np.diff(self.times)[:, None, None]
+        dt = np.where(dt <= GAP_PERIODS * self.period, dt, np.nan)  # no speed across a gap
         with np.errstate(invalid="ignore", divide="ignore"):
             v = np.linalg.norm(np.diff(self.xy, axis=0), axis=-1) / dt / self.height[1:, :, None]  # (T-1, K, J)
             per_track = np.nanmedian(np.where(np.isfinite(v), v, np.nan), axis=2) if v.shape[1] else \
@@ -215,6 +228,45 @@ def pair_offset(a: View, b: View, max_lag_s: float) -> tuple[float, float, dict]
                      "contrast": round(info["contrast"], 4)}
 
 
+def drift_windows(times: np.ndarray) -> list[np.ndarray]:
+    """Frame indices of the windows drift is measured in: runs without gaps, cut into pieces of
+    about DRIFT_WINDOW_S, each at least DRIFT_MIN_WINDOW_S long."""
+    period = float(np.median(np.diff(times)))
+    runs = np.split(np.arange(len(times)), np.flatnonzero(np.diff(times) > GAP_PERIODS * period) + 1)
+    out = []
+    for r in runs:
+        span = times[r[-1]] - times[r[0]]
+        if span < DRIFT_MIN_WINDOW_S:
+            continue
+        n = max(1, int(round(span / DRIFT_WINDOW_S)))
+        out += [p for p in np.array_split(r, n) if times[p[-1]] - times[p[0]] >= DRIFT_MIN_WINDOW_S]
+    return out
+
+
+def pair_drift(a: View, b: View, pairs, offset: float) -> tuple[float, float, float, dict] | None:
+    """Offset at t_a = 0 and rate of b against a (t_a = (1 + rate) t_b + offset) from the windows'
+    sub-frame offsets, with the rate's standard error; None when fewer than two windows tie it."""
+    from mamma_kit.timing.fit import robust_line
+
+    F = a.cam.fundamental_to(b.cam)
+    t_w, o_w, sd_w = [], [], []
+    for idx in drift_windows(a.times):
+        o, info = fine_offset(a, b, F, pairs, offset, idx)
+        if info["observations"] < MIN_OBSERVATIONS // 2 or info["contrast"] < MIN_CONTRAST:
+            continue
+        t_w.append(float(a.times[idx].mean()))
+        o_w.append(o)
+        sd_w.append(1.0 / np.sqrt(info["observations"]))  # relative weight: more observations, steadier
+    if len(t_w) < 2 or np.ptp(t_w) < DRIFT_MIN_TAKE_S / 2:
+        return None
+    t_w, o_w = np.array(t_w), np.array(o_w)
+    fit = robust_line(t_w, o_w, 1.0 / np.square(sd_w), scale_floor=2e-4)
+    s, o0 = fit.slope, fit.intercept  # t_a = t_b + o0 + s t_a
+    sd = fit.slope_sd if np.isfinite(fit.slope_sd) and len(t_w) > 2 else 2e-4 * np.sqrt(2) / np.ptp(t_w)
+    diag = {"windows_s": [round(float(t), 3) for t in t_w], "window_offsets_ms": [round(float(o) * 1e3, 4) for o in o_w]}
+    return o0 / (1 - s), 1 / (1 - s) - 1, float(max(sd, 1e-7)), diag
+
+
 def _linked(rows: list[np.ndarray], names: list[str], reference: str) -> set[str]:
     """Cameras tied to the reference through the pairs in ``rows`` (each row: -1 at a, +1 at b)."""
     linked, grew = {reference}, True
@@ -295,5 +347,51 @@ def _motion_clocks(kts, rig, reference, max_lag_s):
     notes = []
     take = min(v.times[-1] - v.times[0] for v in views.values())
     if take >= DRIFT_MIN_TAKE_S:
-        notes.append("motion sync estimates offsets only; drift over the take is not modelled yet")
+        rates = _joint_drift(names, views, reference, pair_diag, clocks, diag, notes)
+        if rates is not None:
+            for n, (o, r) in rates.items():
+                clocks[n].offset, clocks[n].rate = float(o), float(r)
     return clocks, diag, notes
+
+
+def _joint_drift(names, views, reference, pair_diag, clocks, diag, notes):
+    """Every camera's (offset, rate) from the pairs' windowed drift fits, solved jointly like the
+    offsets (rates add along a chain of pairs to first order); None when the windows do not tie
+    every camera in."""
+    rows, rhs_o, rhs_r, wts = [], [], [], []
+    for (a, b), d in pair_diag.items():
+        if d["confidence"] <= 0 or not d.get("track_pairs"):
+            continue
+        # the pair's offset as the joint solve kept it (a dropped pair disagreed with the others)
+        o_ab = clocks[b].offset - clocks[a].offset
+        if abs(o_ab - d["offset_ms"] * 1e-3) > LOOP_TOLERANCE_FRAMES * views[b].period:
+            continue
+        got = pair_drift(views[a], views[b], d["track_pairs"], o_ab)
+        if got is None:
+            continue
+        o0, rate, sd, dd = got
+        d["drift"] = {"offset_at_zero_ms": round(o0 * 1e3, 4), "rate_ppm": round(rate * 1e6, 3),
+                      "rate_sd_ppm": round(sd * 1e6, 3), **dd}
+        r = np.zeros(len(names))
+        r[names.index(a)], r[names.index(b)] = -1.0, 1.0
+        rows.append(r)
+        rhs_o.append(o0)
+        rhs_r.append(rate)
+        wts.append(1.0 / sd ** 2)
+    if not rows or not _connected(rows, names, reference):
+        notes.append("motion sync: the take is long but its windows do not tie every camera's drift in; "
+                     "offsets only (drift 0)")
+        return None
+    ref_i = names.index(reference)
+    cols = [k for k in range(len(names)) if k != ref_i]
+    A = np.array(rows)[:, cols] * np.sqrt(wts)[:, None]
+    out = {}
+    sol = [np.linalg.lstsq(A, np.array(v) * np.sqrt(wts), rcond=None)[0] for v in (rhs_o, rhs_r)]
+    for k, n in enumerate(names):
+        if k == ref_i:
+            out[n] = (0.0, 0.0)
+        else:
+            j = cols.index(k)
+            out[n] = (sol[0][j], sol[1][j])
+        diag[n]["drift_pairs"] = int(sum(1 for r in rows if r[k] != 0))
+    return out
