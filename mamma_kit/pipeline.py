@@ -2,6 +2,9 @@
 
     calibrate -> sync -> track -> landmarks -> match -> fit -> report
 
+(sync runs after track and keypoints when its method is motion or auto: motion sync reads the
+people's keypoints.)
+
 Every stage is the same function its own command calls (calibration.stage, timing.stage,
 masks.stage, landmarks.stage, matching.stage, fitting.fit_workspace, report.build_report),
 so a stage is skipped exactly when its manifest (.cache/<stage>.json, per camera for track
@@ -199,6 +202,11 @@ def capture_to_smplx(workspace: str | Path, from_stage: str | None = None, to_st
     ws = Workspace(workspace)
     cap = ws.load_capture()
     stages = stage_range(from_stage, to_stage)
+    if str(cap.stage_settings("sync").get("method", "auto")) in ("motion", "auto") and {"sync", "keypoints"} <= set(stages):
+        # motion sync reads the people's keypoints (auto tries it too): sync runs after them; tracking
+        # and keypoints do not read the clocks
+        stages.remove("sync")
+        stages.insert(stages.index("keypoints") + 1, "sync")
     run = RunSummary(str(ws.root))
     t0 = time.perf_counter()
     for i, stage in enumerate(stages):

@@ -96,3 +96,30 @@ def test_a_given_timing_toml_is_kept_and_init_synced_runs_without_audio(tmp_path
     assert run["stages"]["sync"]["status"] == "ran"
     clocks, meta = read_timing(tmp_path / "ws2" / "timing.toml")
     assert meta["method"] == "synced" and all(c.offset == 0 for c in clocks.values())
+
+
+def test_capture_to_smplx_with_motion_sync_and_no_people_is_one_line(tmp_path, cli):
+    """Motion sync runs after track + keypoints in capture-to-smplx; videos with nobody in them end in
+    one line that says so, exit 2."""
+    from conftest import make_ring_rig
+
+    from mamma_kit.core.calibfile import write_calibration
+    from mamma_kit.pipeline import init_workspace
+    from mamma_kit.video.writer import write_video
+
+    rig = make_ring_rig(2, size=(160, 120), f=150.0)
+    rng = np.random.default_rng(0)
+    base = rng.uniform(40, 200, (30, 40, 3)).repeat(4, 0).repeat(4, 1)
+    vids = [write_video(tmp_path / f"{c.name}.mp4", [np.clip(base + rng.normal(0, 2, base.shape), 0, 255)
+                                                     .astype(np.uint8) for _ in range(8)], np.arange(8) / 10)
+            for c in rig]
+    write_calibration(tmp_path / "calib.toml", rig)
+    init_workspace(tmp_path / "ws", vids, calibration=tmp_path / "calib.toml")
+    with (tmp_path / "ws" / "capture.toml").open("a") as f:
+        f.write('\n[settings.sync]\nmethod = "motion"\n')
+    res = cli("capture-to-smplx", tmp_path / "ws")
+    assert res.code == 2, res
+    line = res.err.strip().splitlines()[-1]
+    assert "no people tracked in cam0, cam1" in line and "Traceback" not in res.err
+    assert (tmp_path / "ws" / "keypoints" / "cam0.npz").is_file()  # track and keypoints ran first
+    assert not (tmp_path / "ws" / "timing.toml").exists()

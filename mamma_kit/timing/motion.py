@@ -297,6 +297,11 @@ def motion_clocks(kts: dict[str, KeypointTracks], rig: Rig, reference: str, max_
 
 def _motion_clocks(kts, rig, reference, max_lag_s):
     names = list(kts)
+    empty = [n for n, kt in kts.items() if not (kt.valid.any() if kt.valid.size else False)]
+    if empty:
+        raise UserError(f"motion sync: no people tracked in {', '.join(empty)} (their keypoints files are empty)",
+                        "motion sync needs people moving in view of every camera: check `mamma-kit track` found "
+                        "them (report/, or --people N), or sync by clap, LTC, timecode, flash or --method synced")
     views = {n: View.of(rig[n], kt) for n, kt in kts.items()}
     rows, rhs, wts, pair_diag = [], [], [], {}
     for i, a in enumerate(names):
