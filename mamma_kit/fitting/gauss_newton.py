@@ -13,6 +13,15 @@ per-part dense Jacobians (a landmark only moves with the joints on its chain), e
 the shared shape by its Schur complement, and accepts each block's step only if the block's
 energy drops (per-block damping). The scale g starts large (nearly least squares, a wide
 basin from a rough start) and shrinks to its final value (graduated non-convexity).
+
+A second point set (``PointSet``: the 33 BlazePose keypoints as regressed points, their
+own kinematics riding on the landmarks' forward pass) adds the same robust term, with its
+own sigma and robust scale, to every block's energy and normal equations:
+
+    E_kp = sum_{c,k} w_ck rho(|(kp_ck - Pi_c(X_k)) / sigma_ck|^2)
+
+``GaussNewton.terms(st)`` splits a state's energy into landmarks, keypoints, prior,
+temporal and extra (contact) at the final robust scale: what each energy contributes.
 """
 
 from __future__ import annotations
@@ -36,6 +45,23 @@ class Obs:
 
     def frames(self, s) -> "Obs":
         return Obs(self.xy[:, :, s], self.sigma[:, :, s], self.w[:, :, s])
+
+
+@dataclass
+class PointSet:
+    """Observed points beside the landmarks: kin a BodyKinematics of regressed points,
+    obs (xy, sigma (C, P, T, K, 2), w (C, P, T, K)); weight (K,) multiplies w (e.g. stage 1:
+    the rigid points only)."""
+
+    kin: BodyKinematics
+    obs: Obs
+    weight: torch.Tensor | None = None
+
+    def frames(self, s) -> "PointSet":
+        return PointSet(self.kin, self.obs.frames(s), self.weight)
+
+    def with_weight(self, weight: torch.Tensor | None) -> "PointSet":
+        return PointSet(self.kin, self.obs, weight)
 
 
 @dataclass
@@ -91,6 +117,9 @@ class GNReport:
     energies: list[float] = field(default_factory=list)
     accepted: list[float] = field(default_factory=list)
     iterations: int = 0
+    # energy per term (GaussNewton.terms) before the first and after the last run
+    terms_start: dict = field(default_factory=dict)
+    terms_end: dict = field(default_factory=dict)
 
 
 def box_heights(xy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -111,8 +140,41 @@ def robust(s2: torch.Tensor, gamma: float | torch.Tensor) -> tuple[torch.Tensor,
     return g2 * s2 / den, (g2 / den) ** 2
 
 
+def reprojection_terms(cams: RigTensors, xy: torch.Tensor, inv_sigma: torch.Tensor, w: torch.Tensor,
+                       v: torch.Tensor, gamma: float | torch.Tensor, jac: bool):
+    """Robust reprojection energy of points v (P, T, L, 3) against xy (C, P, T, L, 2) with
+    1 / sigma and weights w: per-block energy (P, T) float64 [and per point H (P, T, L, 3, 3),
+    g (P, T, L, 3) of the Gauss-Newton normal equations]."""
+    v = v.to(CDTYPE)
+    if jac:
+        uv, Jp, valid = cams.project_jacobian(v[None])
+    else:
+        uv, valid = cams.project(v[None])
+    r = (xy - uv) * inv_sigma  # (C, P, T, L, 2)
+    s2 = (r * r).sum(-1)
+    w = w * valid
+    rho, drho = robust(s2, gamma)
+    E = (w * rho).to(DTYPE).sum((0, 3))
+    if not jac:
+        return E
+    sq = torch.sqrt(w * drho)  # (C, P, T, L)
+    Jw = Jp * (inv_sigma * sq[..., None])[..., None]  # (C, P, T, L, 2, 3) whitened
+    rw = r * sq[..., None]
+    # per landmark H = sum_rows Jw^T Jw (3x3), g = sum_rows Jw^T r: six products summed
+    # over cameras and axes (tiny batched matmuls are far slower on a CPU)
+    H = torch.empty(*sq.shape[1:], 3, 3, dtype=CDTYPE)
+    for i in range(3):
+        for j in range(i, 3):
+            H[..., i, j] = (Jw[..., i] * Jw[..., j]).sum((0, -1))
+            if j != i:
+                H[..., j, i] = H[..., i, j]
+    g = (Jw * rw.unsqueeze(-1)).sum((0, -2))
+    return E, H, g
+
+
 class GaussNewton:
-    def __init__(self, kin: BodyKinematics, cams: RigTensors, obs: Obs, cfg: GNConfig):
+    def __init__(self, kin: BodyKinematics, cams: RigTensors, obs: Obs, cfg: GNConfig,
+                 points: PointSet | None = None):
         self.kin, self.cams, self.obs, self.cfg = kin, cams.to(CDTYPE), obs, cfg
         self.act = torch.as_tensor(cfg.active)
         self.groups, self.n = kin.groups(cfg.active)
@@ -123,6 +185,16 @@ class GaussNewton:
         self.xy = obs.xy.to(CDTYPE)
         self.inv_sigma = (1.0 / obs.sigma).to(CDTYPE)
         self.gamma0 = self._gamma_start(cfg, obs)
+        self.points = points
+        if points is not None:
+            pw = points.obs.w.to(CDTYPE)
+            if points.weight is not None:
+                pw = pw * points.weight.to(CDTYPE)
+            self.p_w, self.p_xy = pw, points.obs.xy.to(CDTYPE)
+            self.p_inv_sigma = (1.0 / points.obs.sigma).to(CDTYPE)
+            self.p_gamma0 = self._gamma_start(cfg, points.obs)
+            self.p_groups, n_p = points.kin.groups(cfg.active)
+            assert n_p == self.n
         ps = np.full(55, np.inf) if cfg.prior_sigma is None else np.asarray(cfg.prior_sigma, float)
         self.prior_w = torch.as_tensor(1.0 / ps[list(cfg.active)] ** 2, dtype=DTYPE)  # (A,)
         self.times = None if cfg.temporal_times is None else torch.as_tensor(
@@ -143,34 +215,23 @@ class GaussNewton:
         g0 = self.gamma0
         return g0 * (self.cfg.gamma_end / g0) ** self.cfg.anneal(k)
 
+    def point_gamma_at(self, k: int) -> float | torch.Tensor:
+        """The keypoints' robust scale at iteration k (their own start, same schedule)."""
+        g0 = self.p_gamma0
+        return g0 * (self.cfg.gamma_end / g0) ** self.cfg.anneal(k)
+
     # ---- energy ----------------------------------------------------------------------------
     def data_terms(self, v: torch.Tensor, gamma: float | torch.Tensor, jac: bool):
         """v (P, T, L, 3) -> per-block data energy (P, T) float64 [and H (P,T,L,3,3), g (P,T,L,3)]."""
-        v = v.to(CDTYPE)
-        if jac:
-            uv, Jp, valid = self.cams.project_jacobian(v[None])
-        else:
-            uv, valid = self.cams.project(v[None])
-        r = (self.xy - uv) * self.inv_sigma  # (C, P, T, L, 2)
-        s2 = (r * r).sum(-1)
-        w = self.w * valid
-        rho, drho = robust(s2, gamma)
-        E = (w * rho).to(DTYPE).sum((0, 3))
-        if not jac:
-            return E
-        sq = torch.sqrt(w * drho)  # (C, P, T, L)
-        Jw = Jp * (self.inv_sigma * sq[..., None])[..., None]  # (C, P, T, L, 2, 3) whitened
-        rw = r * sq[..., None]
-        # per landmark H = sum_rows Jw^T Jw (3x3), g = sum_rows Jw^T r: six products summed
-        # over cameras and axes (tiny batched matmuls are far slower on a CPU)
-        H = torch.empty(*sq.shape[1:], 3, 3, dtype=CDTYPE)
-        for i in range(3):
-            for j in range(i, 3):
-                H[..., i, j] = (Jw[..., i] * Jw[..., j]).sum((0, -1))
-                if j != i:
-                    H[..., j, i] = H[..., i, j]
-        g = (Jw * rw.unsqueeze(-1)).sum((0, -2))
-        return E, H, g
+        return reprojection_terms(self.cams, self.xy, self.inv_sigma, self.w, v, gamma, jac)
+
+    def point_forward(self, f: dict, st: State, jac: bool = False, shape_jac: bool = False) -> dict:
+        """The keypoints' positions (and lever arms, shape Jacobian) from the forward pass f."""
+        return self.points.kin.forward_from(f, st.betas, st.transl, jac=jac, shape_jac=shape_jac)
+
+    def point_terms(self, fp: dict, gamma: float | torch.Tensor, jac: bool):
+        """The keypoint term of ``point_forward``'s points; as data_terms (0 without points)."""
+        return reprojection_terms(self.cams, self.p_xy, self.p_inv_sigma, self.p_w, fp["v"], gamma, jac)
 
     def prior_terms(self, rot: torch.Tensor, G: torch.Tensor | None = None):
         """Pose prior energy (P, T) [and its normal-equation diagonal blocks, rhs]."""
@@ -219,17 +280,42 @@ class GaussNewton:
         gj[:, 2:] -= cp[:, None, None] * a
         return E, (h * inv).expand(P, T), gj * inv
 
-    def energy(self, st: State, gamma: float | torch.Tensor, fwd_out: list | None = None) -> torch.Tensor:
+    def energy(self, st: State, gamma: float | torch.Tensor, fwd_out: list | None = None,
+               point_gamma: float | torch.Tensor | None = None) -> torch.Tensor:
+        """Per-block energy (P, T): landmarks at ``gamma``, keypoints at ``point_gamma``
+        (default: gamma when it is a number, else the final scale), prior."""
         f = self.kin.forward(st.betas, st.rot, st.transl)
         if fwd_out is not None:
             fwd_out.append(f)
-        return self.data_terms(f["v"], gamma, jac=False) + self.prior_terms(st.rot)
+        E = self.data_terms(f["v"], gamma, jac=False) + self.prior_terms(st.rot)
+        if self.points is not None:
+            if point_gamma is None:
+                point_gamma = gamma if isinstance(gamma, (int, float)) else self.cfg.gamma_end
+            E = E + self.point_terms(self.point_forward(f, st), point_gamma, jac=False)
+        return E
+
+    def terms(self, st: State, extra: bool = True) -> dict[str, float]:
+        """The state's energy split by term at the final robust scale (see module doc);
+        ``extra``: with the extra term (contact) on its current active set."""
+        g = self.cfg.gamma_end
+        f = self.kin.forward(st.betas, st.rot, st.transl)
+        out = {"landmarks": float(self.data_terms(f["v"], g, jac=False).sum()),
+               "keypoints": float(self.point_terms(self.point_forward(f, st), g, jac=False).sum())
+               if self.points is not None else 0.0,
+               "pose_prior": float(self.prior_terms(st.rot).sum()),
+               "shape_prior": float(self.cfg.shape_weight * (st.betas ** 2).sum()) if self.cfg.optimize_betas else 0.0}
+        if self.times is not None:
+            out["temporal"] = float(self.temporal_terms(f["joints"]).sum())
+        if self.cfg.extra is not None and extra:
+            out["contact"] = float(self.cfg.extra.evaluate(f, st.betas, st.transl, jac=False))
+        return out
 
     # ---- normal equations ------------------------------------------------------------------
     def normal_equations(self, f: dict, H: torch.Tensor, g: torch.Tensor, want_b: bool = False,
-                         temporal: tuple | None = None):
+                         temporal: tuple | None = None, points: tuple | None = None):
         """Normal matrices (B, n, n), right-hand sides (B, n) [and the shape blocks], float64.
-        ``temporal`` = (h (P, T), g_joints (P, T, 55, 3)) adds the joints as weighted points."""
+        ``temporal`` = (h (P, T), g_joints (P, T, 55, 3)) adds the joints as weighted points;
+        ``points`` = (fp, H, g) the keypoints' forward pass and normal-equation pieces."""
         P, T = H.shape[:2]
         B = P * T
         n = self.n
@@ -237,20 +323,24 @@ class GaussNewton:
         rhs = torch.zeros(B, n, dtype=CDTYPE)
         nb = self.kin.shapedirs.shape[-1]
         Mb = torch.zeros(B, n, nb, dtype=CDTYPE) if want_b else None
-        u = f["u"]
-        for gr in self.groups:
-            ng = len(gr.lm)
-            Jf = self.kin.group_jacobian(gr, u)  # (B, 3 n_g, c_g)
-            Hg = H[:, :, gr.lm].reshape(B, ng, 3, 3, 1)
-            Jl = Jf.view(B, ng, 3, -1)
-            HJ = (Hg[:, :, :, 0] * Jl[:, :, 0:1] + Hg[:, :, :, 1] * Jl[:, :, 1:2]
-                  + Hg[:, :, :, 2] * Jl[:, :, 2:3]).reshape(B, 3 * ng, -1)
-            JT = Jf.transpose(1, 2)
-            N.index_add_(1, gr.nflat, (JT @ HJ).reshape(B, -1))
-            rhs[:, gr.cols] += (JT @ g[:, :, gr.lm].reshape(B, 3 * ng, 1))[..., 0]
-            if want_b:
-                Jb = f["Jb"][:, :, gr.lm].reshape(B, 3 * ng, nb)
-                Mb[:, gr.cols] += HJ.transpose(1, 2) @ Jb
+        sources = [(self.kin, self.groups, f, H, g)]
+        if points is not None:
+            sources.append((self.points.kin, self.p_groups, *points))
+        for kin, groups, fs, Hs, gs in sources:
+            u = fs["u"]
+            for gr in groups:
+                ng = len(gr.lm)
+                Jf = kin.group_jacobian(gr, u)  # (B, 3 n_g, c_g)
+                Hg = Hs[:, :, gr.lm].reshape(B, ng, 3, 3, 1)
+                Jl = Jf.view(B, ng, 3, -1)
+                HJ = (Hg[:, :, :, 0] * Jl[:, :, 0:1] + Hg[:, :, :, 1] * Jl[:, :, 1:2]
+                      + Hg[:, :, :, 2] * Jl[:, :, 2:3]).reshape(B, 3 * ng, -1)
+                JT = Jf.transpose(1, 2)
+                N.index_add_(1, gr.nflat, (JT @ HJ).reshape(B, -1))
+                rhs[:, gr.cols] += (JT @ gs[:, :, gr.lm].reshape(B, 3 * ng, 1))[..., 0]
+                if want_b:
+                    Jb = fs["Jb"][:, :, gr.lm].reshape(B, 3 * ng, nb)
+                    Mb[:, gr.cols] += HJ.transpose(1, 2) @ Jb
         if temporal is not None:
             h, gj = temporal
             jg = self.kin.joint_group(self.cfg.active)
@@ -260,13 +350,15 @@ class GaussNewton:
             rhs[:, jg.cols] += (JT @ gj.reshape(B, -1, 1).to(CDTYPE))[..., 0]
         out = {"N": N.view(B, n, n).to(DTYPE), "rhs": rhs.to(DTYPE)}
         if want_b:
-            Jb = f["Jb"]
-            H5 = H.unsqueeze(-1)
-            HJb = (H5[..., 0, :] * Jb[..., 0:1, :] + H5[..., 1, :] * Jb[..., 1:2, :]
-                   + H5[..., 2, :] * Jb[..., 2:3, :]).reshape(P, -1, nb)
-            Jb = Jb.reshape(P, -1, nb)
-            out["Nbb"] = (Jb.transpose(1, 2) @ HJb).to(DTYPE)
-            out["gb"] = (Jb.transpose(1, 2) @ g.reshape(P, -1, 1))[..., 0].to(DTYPE)
+            out["Nbb"], out["gb"] = 0.0, 0.0
+            for _, _, fs, Hs, gs in sources:
+                Jb = fs["Jb"]
+                H5 = Hs.unsqueeze(-1)
+                HJb = (H5[..., 0, :] * Jb[..., 0:1, :] + H5[..., 1, :] * Jb[..., 1:2, :]
+                       + H5[..., 2, :] * Jb[..., 2:3, :]).reshape(P, -1, nb)
+                Jb = Jb.reshape(P, -1, nb)
+                out["Nbb"] = out["Nbb"] + (Jb.transpose(1, 2) @ HJb).to(DTYPE)
+                out["gb"] = out["gb"] + (Jb.transpose(1, 2) @ gs.reshape(P, -1, 1))[..., 0].to(DTYPE)
             out["Mb"] = Mb.to(DTYPE)
         return out
 
@@ -284,18 +376,27 @@ class GaussNewton:
         nb = self.kin.shapedirs.shape[-1]
         par = np.asarray(self.kin.parents)[self.act.numpy()]
         temporal = self.times is not None
+        if report is not None and not report.terms_start:
+            report.terms_start = self.terms(st, extra=False)
         for k in range(max(cfg.iterations, cfg.max_iterations or 0)):
             gamma = self.gamma_at(k)
+            pgamma = self.point_gamma_at(k) if self.points is not None else None
             opt_b = cfg.optimize_betas and k < cfg.betas_iterations
             f = self.kin.forward(st.betas, st.rot, st.transl, jac=True, shape_jac=opt_b)
             Ed, H, g = self.data_terms(f["v"], gamma, jac=True)
             Ep, Nd, rp = self.prior_terms(st.rot, f["G"])
             E_cur = Ed + Ep  # (P, T)
+            pts = None
+            if self.points is not None:
+                fp = self.point_forward(f, st, jac=True, shape_jac=opt_b)
+                Ek, Hk, gk = self.point_terms(fp, pgamma, jac=True)
+                E_cur = E_cur + Ek
+                pts = (fp, Hk, gk)
             tt = None
             if temporal:
                 Et_cur, h_t, g_t = self.temporal_terms(f["joints"], grad=True)
                 tt = (h_t, g_t)
-            ne = self.normal_equations(f, H, g, opt_b, tt)
+            ne = self.normal_equations(f, H, g, opt_b, tt, pts)
             N, rhs = ne["N"], ne["rhs"]
             idx = (3 * torch.arange(A)[:, None] + torch.arange(3)).reshape(A, 3)
             Nv = N.view(B, n, n)
@@ -353,7 +454,7 @@ class GaussNewton:
             if dbeta is not None:
                 cand.betas = st.betas + dbeta
             jo: list = []
-            E_new = self.energy(cand, gamma, jo)
+            E_new = self.energy(cand, gamma, jo, pgamma)
             acc = E_new <= E_cur  # (P, T)
             if temporal:  # frames are coupled: accept or reject each person's step as a whole
                 Et_new = self.temporal_terms(jo[0]["joints"])
@@ -389,4 +490,6 @@ class GaussNewton:
                 break
             if k + 1 >= cfg.iterations and float(rel) < cfg.continue_tol:
                 break
+        if report is not None:
+            report.terms_end = self.terms(st)
         return st, E_cur

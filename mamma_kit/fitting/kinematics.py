@@ -11,6 +11,12 @@ and the normal equations stay small dense blocks.
 
 The forward pass equals body.lbs.pose_restricted (checked in tests) and runs in float64
 without autograd; the L-BFGS stages use body.lbs itself.
+
+Regressed points (``BodyKinematics.regressed``: the fit's 33 keypoints, each a convex
+combination X = sum_v c_v V_v of vertices) are exact "virtual vertices" with one rest
+position per skinning slot: V_v = sum_j w_vj (G_j v_v + tA_j), so X = sum_j w'_j (G_j y_j +
+tA_j) with w'_j = sum_v c_v w_vj and y_j = sum_v c_v w_vj v_v / w'_j (and likewise its shape
+and pose correctives). Lever arms and the shape Jacobian follow the same formulas per slot.
 """
 
 from __future__ import annotations
@@ -113,11 +119,14 @@ SKEW_SIGN = torch.tensor([e[3] for e in _SKEW_NEG], dtype=CDTYPE)
 class BodyKinematics:
     """Restricted LBS at a vertex set (default: the model's landmarks) with GN structure."""
 
-    def __init__(self, model, vertex_ids: np.ndarray | None = None):
-        rb = model.restricted(vertex_ids)
+    def __init__(self, model, vertex_ids: np.ndarray | None = None, regressor=None):
+        """``regressor``: body.kp_regressor.KeypointRegressor; the points are then its
+        regressed points (see the module doc), ``ids`` each one's heaviest support vertex."""
+        rb = model.restricted(vertex_ids) if regressor is None else _regressed_body(model, regressor)
         self.model = model
         self.ids = rb.ids
         self.N = len(self.ids)
+        self.per_slot = rb.v_template.ndim == 3  # rest positions (N, K, 3): one per skinning slot
         self.v_template = rb.v_template.to(DTYPE)
         self.shapedirs = rb.shapedirs.to(DTYPE)
         self.posedirs = None if rb.posedirs is None else rb.posedirs.to(DTYPE)
@@ -168,12 +177,20 @@ class BodyKinematics:
 
     # ---- shape ------------------------------------------------------------------------
     def rest(self, betas: torch.Tensor, dtype=DTYPE) -> tuple[torch.Tensor, torch.Tensor]:
-        """betas (P, B) -> rest joints (P, 55, 3), rest vertices (P, N, 3)."""
+        """betas (P, B) -> rest joints (P, 55, 3), rest vertices (P, N, 3) (regressed points:
+        per skinning slot, (P, N, K, 3))."""
         d = self.f32 if dtype == CDTYPE else self.__dict__
         b = betas.to(dtype)
         J = d["J_template"] + torch.einsum("jdb,pb->pjd", d["J_shapedirs"], b)
-        v = d["v_template"] + torch.einsum("ndb,pb->pnd", d["shapedirs"], b)
+        v = d["v_template"] + torch.einsum("n...db,pb->pn...d", d["shapedirs"], b)
         return J, v
+
+    def rest_points(self, betas: torch.Tensor, dtype=DTYPE) -> torch.Tensor:
+        """Rest-pose positions (P, N, 3) of the points (regressed points blended over slots)."""
+        _, v = self.rest(betas, dtype)
+        if not self.per_slot:
+            return v
+        return (v * self.skin_w.to(dtype)[None, ..., None]).sum(-2)
 
     # ---- pose -------------------------------------------------------------------------
     @torch.no_grad()
@@ -185,34 +202,49 @@ class BodyKinematics:
         rotations; with ``jac`` also u (P, T, N, M, 3) lever arms per influence slot; with
         ``shape_jac`` also Jb (P, T, N, 3, B) = d v / d betas. Computed in ``dtype``.
         """
-        d = self.f32 if dtype == CDTYPE else self.__dict__
-        Jr, v0 = self.rest(betas, dtype)
-        P, T = rot.shape[:2]
+        Jr = self.rest(betas, dtype)[0]
         rot = rot.to(dtype)
-        if self.posedirs is not None:
-            feat = (rot[:, :, 1:] - torch.eye(3, dtype=dtype)).flatten(-3)  # (P, T, 486)
-            v0 = v0[:, None] + (feat @ d["posedirs"]).reshape(P, T, self.N, 3)
-        else:
-            v0 = v0[:, None]
         G, p = forward_kinematics(rot, Jr[:, None], self.parents)  # (P, T, 55, 3, 3), (P, T, 55, 3)
         tA = p - (G @ Jr[:, None].unsqueeze(-1)).squeeze(-1)  # translation of each joint transform
+        f = {"G": G, "p": p, "tA": tA, "Jr": Jr, "rot": rot}
+        return self.forward_from(f, betas, transl, jac, shape_jac, dtype)
+
+    @torch.no_grad()
+    def forward_from(self, f: dict, betas: torch.Tensor, transl: torch.Tensor, jac: bool = False,
+                     shape_jac: bool = False, dtype=CDTYPE) -> dict:
+        """This kinematics' points from another forward pass ``f`` of the same poses (its
+        joint transforms G, p, tA, Jr, rot; any vertex set): the keypoints ride on the
+        landmarks' forward kinematics. Returns what ``forward`` returns."""
+        d = self.f32 if dtype == CDTYPE else self.__dict__
+        v0 = self.rest(betas, dtype)[1]
+        G, p, tA, Jr, rot = (f[k].to(dtype) for k in ("G", "p", "tA", "Jr", "rot"))
+        P, T = rot.shape[:2]
+        pt = (self.skin_idx.shape[1], 3) if self.per_slot else (3,)
+        if self.posedirs is not None:
+            feat = (rot[:, :, 1:] - torch.eye(3, dtype=dtype)).flatten(-3)  # (P, T, 486)
+            v0 = v0[:, None] + (feat @ d["posedirs"]).reshape(P, T, self.N, *pt)
+        else:
+            v0 = v0[:, None]
         # x_lk = G_k v_l + tA_k for the K skinning joints of every vertex, as broadcast
         # multiply-adds (a batched 3x3 product per vertex and slot is far slower on a CPU)
         Gk = G[:, :, self.skin_idx]  # (P, T, N, K, 3, 3)
-        vv = v0.unsqueeze(-2)  # (P, T|1, N, 1, 3)
+        vv = v0 if self.per_slot else v0.unsqueeze(-2)  # (P, T|1, N, K|1, 3)
         x = tA[:, :, self.skin_idx] + Gk[..., 0] * vv[..., 0:1] + Gk[..., 1] * vv[..., 1:2] + Gk[..., 2] * vv[..., 2:3]
         tr = transl.to(dtype)[:, :, None]
         v = (x * d["skin_w"][..., None]).sum(-2) + tr
-        out = {"v": v, "joints": p + tr, "G": G, "p": p, "tA": tA, "Jr": Jr}
+        out = {"v": v, "joints": p + tr, "G": G, "p": p, "tA": tA, "Jr": Jr, "rot": rot}
         if jac:
             pz = torch.cat([p, torch.zeros_like(p[:, :, :1])], 2)  # dummy joint J -> zero
             u = torch.einsum("nmk,ptnkd->ptnmd", d["coef"], x) - d["coef_sum"][..., None] * pz[:, :, self.infl]
             out["u"] = u
             out["u_joints"] = p.unsqueeze(-2) - pz[:, :, self.joint_infl]  # (P, T, 55, Mj, 3); dummy slots unused
         if shape_jac:
-            Gt = torch.einsum("nk,ptkij->ptnij", d["W"], G)  # (P, T, N, 3, 3) blended rotation
-            Sd = d["shapedirs"]  # (N, 3, B)
-            Jb = Gt[..., 0:1] * Sd[:, 0:1] + Gt[..., 1:2] * Sd[:, 1:2] + Gt[..., 2:3] * Sd[:, 2:3]  # (P, T, N, 3, B)
+            Sd = d["shapedirs"]  # (N, 3, B), regressed points (N, K, 3, B)
+            if self.per_slot:  # each slot's own shape directions under its joint's rotation
+                Jb = torch.einsum("nk,ptnkij,nkjb->ptnib", d["skin_w"], Gk, Sd)
+            else:
+                Gt = torch.einsum("nk,ptkij->ptnij", d["W"], G)  # (P, T, N, 3, 3) blended rotation
+                Jb = Gt[..., 0:1] * Sd[:, 0:1] + Gt[..., 1:2] * Sd[:, 1:2] + Gt[..., 2:3] * Sd[:, 2:3]  # (P, T, N, 3, B)
             SJ = d["J_shapedirs"]  # (55, 3, B)
             dSJ = SJ - torch.cat([torch.zeros_like(SJ[:1]), SJ[self.parents[1:]]], 0)
             Gpar = torch.cat([torch.eye(3, dtype=dtype).expand(P, T, 1, 3, 3), G[:, :, self.parents[1:]]], 2)
@@ -230,10 +262,11 @@ class BodyKinematics:
         matter for SMPL-X files and are left to the landmark terms)."""
         d = self.f32 if dtype == CDTYPE else self.__dict__
         b = betas.to(dtype)[pi]
-        v0 = d["v_template"][vi] + torch.einsum("edb,eb->ed", d["shapedirs"][vi], b)  # (E, 3)
+        v0 = d["v_template"][vi] + torch.einsum("e...db,eb->e...d", d["shapedirs"][vi], b)  # (E, 3) or (E, K, 3)
         idx = self.skin_idx[vi]  # (E, K)
         G = f["G"][pi[:, None], ti[:, None], idx]  # (E, K, 3, 3)
-        x = (G * v0[:, None, None, :]).sum(-1) + f["tA"][pi[:, None], ti[:, None], idx]  # (E, K, 3)
+        vk = v0[:, :, None, :] if self.per_slot else v0[:, None, None, :]
+        x = (G * vk).sum(-1) + f["tA"][pi[:, None], ti[:, None], idx]  # (E, K, 3)
         v = (x * d["skin_w"][vi][..., None]).sum(1) + transl.to(dtype)[pi, ti]
         if not jac:
             return v, None
@@ -315,3 +348,50 @@ def params_from_rotmats(rot: torch.Tensor) -> dict[str, torch.Tensor]:
         out[k] = aa[..., off // 3: (off + n) // 3, :].reshape(*aa.shape[:-2], n)
         off += n
     return out
+
+
+@dataclass
+class RegressedBody:
+    """Restricted-body data of regressed points (see the module doc): ids (N,) each point's
+    heaviest support vertex; v_template (N, K, 3) and shapedirs (N, K, 3, B) per skinning
+    slot; posedirs (486, N * K * 3) or None; skin_idx, skin_w (N, K); W (N, 55)."""
+
+    ids: np.ndarray
+    v_template: torch.Tensor
+    shapedirs: torch.Tensor
+    posedirs: torch.Tensor | None
+    skin_idx: torch.Tensor
+    skin_w: torch.Tensor
+    W: torch.Tensor
+
+
+def _regressed_body(model, reg) -> RegressedBody:
+    ids, c = np.asarray(reg.ids), np.asarray(reg.weights, np.float64)  # (N, S)
+    Wd = model.weights_dense.numpy().astype(np.float64)[ids]  # (N, S, 55)
+    cw = c[..., None] * Wd  # (N, S, 55): c_v w_vj
+    wj = cw.sum(1)  # (N, 55) blended skinning weight of each joint
+    slots = [np.flatnonzero(w > 1e-7) for w in wj]
+    K = max(len(s) for s in slots)
+    N = len(ids)
+    v = model.v_template.numpy().astype(np.float64)[ids]  # (N, S, 3)
+    sd = model.shapedirs.numpy().astype(np.float64)[ids]  # (N, S, 3, B)
+    pd = None if model.posedirs is None else model.posedirs.numpy().astype(np.float64)[ids]  # (N, S, 3, 486)
+    skin_idx = np.zeros((N, K), np.int64)
+    skin_w = np.zeros((N, K))
+    vt = np.zeros((N, K, 3))
+    sdt = np.zeros((N, K, 3, sd.shape[-1]))
+    pdt = None if pd is None else np.zeros((N, K, 3, pd.shape[-1]))
+    for n in range(N):  # setup only (33 points)
+        js = slots[n]
+        a = cw[n][:, js] / wj[n, js]  # (S, k): each support vertex's share of the slot
+        skin_idx[n, :len(js)] = js
+        skin_w[n, :len(js)] = wj[n, js]
+        vt[n, :len(js)] = np.einsum("sk,sd->kd", a, v[n])
+        sdt[n, :len(js)] = np.einsum("sk,sdb->kdb", a, sd[n])
+        if pd is not None:
+            pdt[n, :len(js)] = np.einsum("sk,sdf->kdf", a, pd[n])
+    skin_w /= skin_w.sum(1, keepdims=True)
+    t = lambda a: torch.as_tensor(a, dtype=model.v_template.dtype)  # noqa: E731
+    pdf = None if pdt is None else t(pdt.reshape(N * K * 3, -1).T.copy())
+    rep = ids[np.arange(N), c.argmax(1)]
+    return RegressedBody(rep, t(vt), t(sdt), pdf, torch.as_tensor(skin_idx), t(skin_w), t(wj / wj.sum(1, keepdims=True)))
