@@ -1,8 +1,9 @@
 """Fitting SMPL-X bodies to multi-view landmarks: the four-stage fit with contact.
 
 Entry points:
-- ``fit_workspace(ws, ...)``: read calibration.toml, timing.toml, landmarks/, identities.json;
-  fit; write smplx/person_<k>.npz and smplx/fit_report.json; return the report.
+- ``fit_workspace(ws, ...)``: read calibration.toml, timing.toml, landmarks/, keypoints/ (when
+  there), identities.json; fit; write smplx/person_<k>.npz and smplx/fit_report.json (per stage
+  what each energy contributes, landmark and keypoint reprojection per camera); return the report.
 - ``pick_cameras(rig, count)``: farthest-point sampling of cameras (cameras.py).
 - ``Fitter`` / ``FitConfig`` (stages.py) to fit FitData directly (tests, benchmarks).
 """
@@ -46,6 +47,32 @@ def reprojection_report(model, data, result: FitResult, min_vis: float = 0.5) ->
     return out
 
 
+def keypoint_report(model, data, result: FitResult, regressor, min_vis: float = 0.5) -> dict:
+    """Per camera: median / mean / 90th percentile px between BlazePose's points (visibility
+    x presence > min_vis) and the fitted bodies' regressed points, and the median in % of
+    the person's size in the view."""
+    import torch
+
+    from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp
+    from mamma_kit.fitting.projection import RigTensors
+
+    kin = BodyKinematics(model, regressor=regressor)
+    with torch.no_grad():
+        f = kin.forward(torch.as_tensor(result.betas), so3_exp(torch.as_tensor(result.pose)),
+                        torch.as_tensor(result.transl), dtype=torch.float64)
+        uv, valid = RigTensors.from_rig(data.rig).project(f["v"][None])
+    err = np.linalg.norm(uv.numpy() - data.kp_xy, axis=-1)  # (C, P, T, 33)
+    use = (data.kp_vis > min_vis) & valid.numpy() & (data.kp_size[..., None] > 0)
+    rel = err / np.maximum(data.kp_size[..., None], 1e-6) * 100
+    out = {}
+    for i, n in enumerate(data.cameras):
+        e = err[i][use[i]]
+        out[n] = ({"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
+                   "median_pct_size": float(np.median(rel[i][use[i]])), "points": int(len(e))}
+                  if len(e) else {"points": 0})
+    return out
+
+
 def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None = None, stages: int = 4,
                   body_model: str | None = None, config: FitConfig | None = None, command: str = "mamma-kit fit",
                   force: bool = False, threads: int | None = None) -> dict:
@@ -86,7 +113,8 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         return rep
     log.info(f"fit: {len(data.person_ids)} person(s), {len(data.frame_times)} frames, cameras "
              f"{', '.join(data.cameras)}, stages 1-{stages}")
-    result = Fitter(model, data, cfg).fit()
+    fitter = Fitter(model, data, cfg)
+    result = fitter.fit()
     secs = time.perf_counter() - t0
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
     written = []
@@ -109,6 +137,11 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         "chunks": result.chunks,
         "stage_stats": {k: v.to_dict() for k, v in result.stats.items()},
         "reprojection_px": reprojection_report(model, data, result),
+        "keypoints": ({"used": True, "weight": cfg.keypoint_weight, "regressor_learned": fitter.regressor.learned,
+                       "reprojection_px": keypoint_report(model, data, result, fitter.regressor)}
+                      if fitter.kp is not None else
+                      {"used": False, "why": "no keypoints/<cam>.npz" if not data.has_keypoints
+                       else "keypoint_weight is 0"}),
         "seconds": round(secs, 2), "threads": torch.get_num_threads(),
         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "notes": data.notes,

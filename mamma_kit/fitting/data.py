@@ -12,6 +12,13 @@ Arrays (C cameras, P people, T frames, L landmarks), camera-major:
 xy (C, P, T, L, 2) px, sigma (C, P, T, L, 2) px, vis (C, P, T, L) visibility in [0, 1]
 (0 where the view has no observation), contact and floor (C, P, T, L) probabilities,
 present (C, P, T) bool.
+
+Keypoints (keypoints/<cam>.npz, BlazePose's 33 points on the same track ids as the
+landmarks, so identities.json maps them alike), taken at the output times the same way:
+kp_xy (C, P, T, 33, 2) px, kp_vis (C, P, T, 33) visibility x presence (0 where the view has
+none), kp_size (C, P, T) px the person's size in the view (the larger side of the box of
+its 33 points: the scale of BlazePose's error). None when no selected camera has
+keypoints; cameras without a file have kp_vis 0 (both said in notes).
 """
 
 from __future__ import annotations
@@ -51,6 +58,13 @@ class FitData:
     landmark_set: str = ""
     notes: list[str] = field(default_factory=list)
     inputs: list[Path] = field(default_factory=list)
+    kp_xy: np.ndarray | None = None
+    kp_vis: np.ndarray | None = None
+    kp_size: np.ndarray | None = None
+
+    @property
+    def has_keypoints(self) -> bool:
+        return self.kp_vis is not None and bool((self.kp_vis > 0).any())
 
     @property
     def cameras(self) -> list[str]:
@@ -63,10 +77,11 @@ class FitData:
 
     def slice_frames(self, s: slice) -> "FitData":
         """The same data over a range of output frames (a chunk)."""
-        sub = lambda a: a[:, :, s]  # noqa: E731
+        sub = lambda a: None if a is None else a[:, :, s]  # noqa: E731
         return FitData(self.rig, self.clocks, self.reference, self.frame_camera, self.frame_times[s], self.fps,
                        self.person_ids, sub(self.xy), sub(self.sigma), sub(self.vis), sub(self.contact),
-                       sub(self.floor), sub(self.present), self.landmark_set, self.notes, self.inputs)
+                       sub(self.floor), sub(self.present), self.landmark_set, self.notes, self.inputs,
+                       sub(self.kp_xy), sub(self.kp_vis), sub(self.kp_size))
 
 
 def _read_clocks(ws: Workspace, names: list[str]) -> tuple[dict[str, ClockModel], str, list[str]]:
@@ -103,6 +118,97 @@ def _person_map(ws: Workspace, tracks: dict[str, LandmarkTracks]) -> tuple[dict[
     return {c: {int(t): int(t) for t in lt.track_ids} for c, lt in tracks.items()}, notes
 
 
+def _bracket(tr: np.ndarray, out_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A view's frames around each output time: i0, i1 (T,) and the fraction a of the way."""
+    i0 = np.clip(np.searchsorted(tr, out_t, side="right") - 1, 0, max(len(tr) - 2, 0))
+    i1 = np.minimum(i0 + 1, len(tr) - 1)
+    span = np.where(i1 > i0, tr[i1] - tr[i0], 1.0)
+    return i0, i1, np.clip((out_t - tr[i0]) / span, 0.0, 1.0)
+
+
+def _sampling(ok: np.ndarray, i0: np.ndarray, i1: np.ndarray, a: np.ndarray, taken: np.ndarray):
+    """Output frames a track covers (both neighbours, or one within NEAR_FRAC) and not yet
+    ``taken`` by another track of the person: take (T,), and the frames f0, f1 and weight
+    w1 (n,) to mix. None if it covers nothing."""
+    v0, v1 = ok[i0], ok[i1]
+    both = v0 & v1
+    use0 = ~both & v0 & (a <= NEAR_FRAC)
+    use1 = ~both & v1 & (a >= 1 - NEAR_FRAC)
+    w1 = np.where(both, a, np.where(use1, 1.0, 0.0))
+    take = (both | use0 | use1) & ~taken  # a person's first track wins a frame
+    if not take.any():
+        return None
+    return take, i0[take], i1[take], w1[take]
+
+
+def _mixer(f0: np.ndarray, f1: np.ndarray, w1: np.ndarray, k: int):
+    """Linear mix of a track column's values at frames f0, f1 (NaN-tolerant)."""
+    def mix(arr):
+        a0, a1 = arr[f0, k].astype(np.float64), arr[f1, k].astype(np.float64)
+        a0 = np.where(np.isfinite(a0), a0, a1)
+        a1 = np.where(np.isfinite(a1), a1, a0)
+        w = w1.reshape(w1.shape + (1,) * (a0.ndim - 1))
+        return (1 - w) * a0 + w * a1
+    return mix
+
+
+def point_box_size(xy_tk_n2: np.ndarray) -> np.ndarray:
+    """Larger side (px) of the box around each detection's points: (..., n, 2) -> (...)."""
+    with np.errstate(invalid="ignore"):
+        ext = np.nanmax(xy_tk_n2, -2) - np.nanmin(xy_tk_n2, -2)
+    return np.nan_to_num(ext.max(-1), nan=0.0)
+
+
+def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.ndarray, pmap: dict,
+                   pindex: dict, image_sizes: dict) -> tuple[np.ndarray | None, ...]:
+    """kp_xy, kp_vis, kp_size (module doc) and the files read; Nones without any file."""
+    from mamma_kit.core.tracks import KeypointTracks
+
+    have = [n for n in names if ws.keypoints_file(n).is_file()]
+    if not have:
+        return None, None, None, []
+    C, P, T = len(names), len(pindex), len(out_t)
+    kp_xy = np.zeros((C, P, T, 33, 2), np.float32)
+    kp_vis = np.zeros((C, P, T, 33), np.float32)
+    kp_size = np.zeros((C, P, T), np.float32)
+    taken = np.zeros((C, P, T), bool)
+    for ci, n in enumerate(names):
+        if n not in have:
+            continue
+        kt = KeypointTracks.load(ws.keypoints_file(n))
+        if tuple(kt.image_size) != tuple(image_sizes[n]):
+            raise UserError(f"keypoints/{n}.npz is for {kt.image_size[0]}x{kt.image_size[1]} images, "
+                            f"calibration.toml says {image_sizes[n][0]}x{image_sizes[n][1]}",
+                            "run `mamma-kit keypoints` on the calibrated videos (--force)")
+        if kt.xy.shape[2] != 33:
+            raise UserError(f"keypoints/{n}.npz holds {kt.xy.shape[2]} points per person, the fit expects 33",
+                            "run `mamma-kit keypoints WORKSPACE --force`")
+        tr = ref_times[n](kt.frame_times)
+        if len(tr) == 0:
+            continue
+        i0, i1, a = _bracket(tr, out_t)
+        size_tk = point_box_size(kt.xy)
+        for k, tid in enumerate(kt.track_ids):
+            p = pmap[n].get(int(tid))
+            if p is None or p not in pindex:
+                continue
+            pi = pindex[p]
+            smp = _sampling(kt.valid[:, k], i0, i1, a, taken[ci, pi])
+            if smp is None:
+                continue
+            take, f0, f1, w1 = smp
+            mix = _mixer(f0, f1, w1, k)
+            xy_m = mix(kt.xy)
+            bad = ~np.isfinite(xy_m).all(-1)
+            vv = np.clip(np.nan_to_num(mix(kt.visibility) * mix(kt.presence)), 0, 1)
+            vv[bad] = 0.0
+            kp_xy[ci, pi, take] = np.nan_to_num(xy_m)
+            kp_vis[ci, pi, take] = vv
+            kp_size[ci, pi, take] = mix(size_tk)
+            taken[ci, pi, take] = True
+    return kp_xy, kp_vis, kp_size, [ws.keypoints_file(n) for n in have]
+
+
 def select_cameras(rig: Rig, cameras: int | None, camera_list: list[str] | None) -> list[str]:
     if camera_list:
         bad = [c for c in camera_list if c not in rig]
@@ -118,8 +224,9 @@ def select_cameras(rig: Rig, cameras: int | None, camera_list: list[str] | None)
 
 
 def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[str] | None = None,
-                  n_landmarks: int | None = None) -> FitData:
-    """Read calibration, timing, landmarks and identities of a workspace (see module doc)."""
+                  n_landmarks: int | None = None, keypoints: bool = True) -> FitData:
+    """Read calibration, timing, landmarks, keypoints (unless ``keypoints`` is False) and
+    identities of a workspace (see module doc)."""
     if not ws.calibration.is_file():
         raise UserError(f"{ws.root} has no calibration.toml", "run `mamma-kit calibrate WORKSPACE` first")
     rig_all, _ = read_calibration(ws.calibration)
@@ -187,34 +294,17 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         tr = ref_times[n]
         if len(tr) == 0:
             continue
-        i0 = np.clip(np.searchsorted(tr, out_t, side="right") - 1, 0, max(len(tr) - 2, 0))
-        i1 = np.minimum(i0 + 1, len(tr) - 1)
-        span = np.where(i1 > i0, tr[i1] - tr[i0], 1.0)
-        a = np.clip((out_t - tr[i0]) / span, 0.0, 1.0)
+        i0, i1, a = _bracket(tr, out_t)
         for k, tid in enumerate(lt.track_ids):
             p = pmap[n].get(int(tid))
             if p is None or p not in pindex:  # unmatched, or a person left out (seen in one view)
                 continue
             pi = pindex[p]
-            ok = lt.valid[:, k]
-            v0, v1 = ok[i0], ok[i1]
-            both = v0 & v1
-            use0 = ~both & v0 & (a <= NEAR_FRAC)
-            use1 = ~both & v1 & (a >= 1 - NEAR_FRAC)
-            w1 = np.where(both, a, np.where(use1, 1.0, 0.0))
-            take = (both | use0 | use1) & ~present[ci, pi]  # a person's first track wins a frame
-            if not take.any():
+            smp = _sampling(lt.valid[:, k], i0, i1, a, present[ci, pi])
+            if smp is None:
                 continue
-            w1t = w1[take][:, None]
-            f0, f1 = i0[take], i1[take]
-
-            def mix(arr):
-                a0, a1 = arr[f0, k].astype(np.float64), arr[f1, k].astype(np.float64)
-                a0 = np.where(np.isfinite(a0), a0, a1)
-                a1 = np.where(np.isfinite(a1), a1, a0)
-                w = w1t.reshape(w1t.shape + (1,) * (a0.ndim - 2))
-                return (1 - w) * a0 + w * a1
-
+            take, f0, f1, w1 = smp
+            mix = _mixer(f0, f1, w1, k)
             xy_m = mix(lt.xy)
             bad = ~np.isfinite(xy_m).all(-1)
             xy[ci, pi, take] = np.nan_to_num(xy_m)
@@ -228,5 +318,15 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
     sets = {lt.landmark_set for lt in tracks.values()}
     inputs = [ws.calibration] + [ws.landmarks_file(n) for n in names]
     inputs += [p for p in (ws.timing, ws.identities) if p.is_file()]
+    kp_xy = kp_vis = kp_size = None
+    if keypoints:
+        kp_xy, kp_vis, kp_size, kp_files = load_keypoints(
+            ws, names, {n: clocks[n].to_ref for n in names}, out_t, pmap, pindex, {n: rig[n].size for n in names})
+        inputs += kp_files
+        if not kp_files:
+            notes.append("no keypoints/<cam>.npz: the keypoint energy is off (run `mamma-kit keypoints`)")
+        elif len(kp_files) < len(names):
+            notes.append("no keypoints for " + ", ".join(n for n in names if not ws.keypoints_file(n).is_file())
+                         + ": the keypoint energy uses the other views")
     return FitData(rig, clocks, reference, frame_camera, out_t, fps, person_ids, xy, sigma, vis, contact, floor,
-                   present, ",".join(sorted(s for s in sets if s)), notes, inputs)
+                   present, ",".join(sorted(s for s in sets if s)), notes, inputs, kp_xy, kp_vis, kp_size)

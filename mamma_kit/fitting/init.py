@@ -109,16 +109,23 @@ def kabsch(Y: np.ndarray, X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def rigid_from_landmarks(kin, X: np.ndarray, info: np.ndarray, centres: np.ndarray,
-                         centre_ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         centre_ok: np.ndarray, extra: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Root rotation (P, T, 3, 3) and transl (P, T, 3) from triangulated landmarks
     (P, T, L, 3) with the rest pose at zero shape; frames without enough torso landmarks
-    take the nearest good frame's rotation and the body centre. Returns also ok (P, T)."""
+    take the nearest good frame's rotation and the body centre. Returns also ok (P, T).
+    ``extra`` = (rest points (n, 3), triangulated (P, T, n, 3), information (P, T, n)):
+    more rigid points in the same Procrustes (the head and trunk keypoints)."""
     P, T = X.shape[:2]
     J0, v0 = kin.rest(torch.zeros(1, kin.shapedirs.shape[-1], dtype=kin.v_template.dtype))
     J0, v0 = J0[0].numpy(), v0[0].numpy()
     part_ids = [sk.PART_NAMES.index(p) for p in RIGID_PARTS]
     sel = np.isin(kin.part, part_ids)
-    R, c, ok = kabsch(v0[sel], X[:, :, sel], info[:, :, sel])
+    Y, Xs, ws = v0[sel], X[:, :, sel], info[:, :, sel]
+    if extra is not None:
+        Y = np.concatenate([Y, extra[0]], 0)
+        Xs = np.concatenate([Xs, extra[1]], 2)
+        ws = np.concatenate([ws, extra[2]], 2)
+    R, c, ok = kabsch(Y, Xs, ws)
     # X ~ R (v - J0) + J0 + transl  =>  transl = c + R J0 - J0
     transl = c + (R @ J0[0][:, None])[..., 0] - J0[0]
     for p in range(P):

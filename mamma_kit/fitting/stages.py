@@ -3,6 +3,7 @@
 Per chunk (all its frames and people at once):
 
   init  body centres from rays, robust triangulation, Procrustes of the torso landmarks
+        (and of the triangulated head and trunk keypoints)
   S1    global rotation + translation per person and frame (LM on the reprojection energy of
         the rigid torso/head landmarks; several headings where Procrustes had too little)
   S2    pose, shape and translation (LM, robust reprojection / sigma weighted by visibility,
@@ -17,6 +18,14 @@ Per chunk (all its frames and people at once):
   S4    contact: view-averaged contact probabilities pull limb landmarks onto the other body,
         repulsion pushes points out of it beyond a few mm (contact.py); LM with all people's
         steps accepted together
+
+Keypoints (BlazePose's 33 points, when keypoints/<cam>.npz exist): a second robust term in
+every stage beside the landmarks (gauss_newton.PointSet), the points regressed from the
+body's vertices (body.kp_regressor), sigma = the regressor's per-point error (fraction of
+the box height) x the person's size in the view, weighted by visibility x presence x
+``keypoint_weight``; stage 1 uses the head and trunk points, stage 3 leaves their sigma as
+it is (BlazePose's error does not shrink with the fit's agreement). Each stage's stats say
+what every term contributes (energy per term before and after, at the final robust scale).
 
 Every stage is Levenberg-Marquardt on the block-sparse problem (gauss_newton.py) rather than
 the paper's L-BFGS: on a CPU it needs a few iterations where L-BFGS needs hundreds of
@@ -41,7 +50,7 @@ from mamma_kit.fitting import init as finit
 from mamma_kit.fitting.contact import ContactConfig, ContactModel, contact_weights
 from mamma_kit.fitting.data import FitData
 from mamma_kit.fitting.energies import ReprojectionEnergy, pose_dict
-from mamma_kit.fitting.gauss_newton import DTYPE, GaussNewton, GNConfig, GNReport, Obs, State
+from mamma_kit.fitting.gauss_newton import DTYPE, GaussNewton, GNConfig, GNReport, Obs, PointSet, State
 from mamma_kit.fitting.kinematics import BodyKinematics, so3_log
 from mamma_kit.fitting.projection import RigTensors
 
@@ -85,6 +94,13 @@ class FitConfig:
     floor: bool = False  # stage 4: feet above the floor z = 0, floor-contact landmarks on it
     floor_sigma: float = 0.005
     contact: ContactConfig = field(default_factory=ContactConfig)
+    # BlazePose keypoints beside the landmarks (used when the data has them; 0 = off). 1 = the
+    # 33 points together weigh as much as the L landmarks at equal sigma (each x L / 33): 512
+    # landmarks of one network err together (a limb off as a whole) and would otherwise
+    # outvote the detector (tests/test_fit_keypoints.py: part-correlated 8 % landmark noise)
+    keypoint_weight: float = 1.0
+    keypoint_min_sigma_px: float = 1.0  # a keypoint's sigma is never below this
+    landmark_weight: float = 1.0  # 0: keypoints alone (benchmarks)
 
     def prior_sigma(self) -> np.ndarray:
         ps = np.full(sk.NUM_JOINTS, self.body_prior_sigma)
@@ -129,10 +145,29 @@ class StageStats:
         for k, v in other.extra.items():
             self.extra[k] = self.extra.get(k, 0) + v if isinstance(v, (int, float)) else v
 
+    def add_terms(self, rep: GNReport) -> None:
+        """Energy per term (GaussNewton.terms) before and after the stage, summed over chunks."""
+        for when, terms in (("start", rep.terms_start), ("end", rep.terms_end)):
+            for k, v in terms.items():
+                key = f"E_{k}_{when}"
+                self.extra[key] = self.extra.get(key, 0.0) + v
+
     def to_dict(self) -> dict:
-        return {"wall_s": round(self.wall_s, 3), "cpu_s": round(self.cpu_s, 3),
-                "energy_start": self.energy_start, "energy_end": self.energy_end,
-                "iterations": self.iterations, **self.extra}
+        extra = {k: v for k, v in self.extra.items() if not k.startswith("E_")}
+        terms: dict = {}
+        for k, v in self.extra.items():
+            if k.startswith("E_"):
+                name, when = k[2:].rsplit("_", 1)
+                terms.setdefault(name, {})[when] = v
+        out = {"wall_s": round(self.wall_s, 3), "cpu_s": round(self.cpu_s, 3),
+               "energy_start": self.energy_start, "energy_end": self.energy_end,
+               "iterations": self.iterations, **extra}
+        if terms:  # what each energy contributes: its value before / after, share of the end total
+            tot = sum(t.get("end", 0.0) for t in terms.values())
+            for t in terms.values():
+                t["share_end"] = t.get("end", 0.0) / tot if tot > 0 else 0.0
+            out["energy_terms"] = terms
+        return out
 
 
 class _Timer:
@@ -172,28 +207,79 @@ class Fitter:
         self.s1_sel = np.flatnonzero(np.isin(self.kin.part, part_ids))  # stage 1 sees these landmarks only
         self.kin_s1 = BodyKinematics(model, model.landmark_ids[self.s1_sel])
         self.tau = torch.as_tensor([self.cfg.tau_px_4k * max(c.size) / 3840.0 for c in data.rig], dtype=torch.float32)
+        self.kp = None  # keypoints: regressor and its kinematics, when the data has keypoints and they are on
+        if data.has_keypoints and self.cfg.keypoint_weight > 0:
+            from mamma_kit.body.kp_regressor import RIGID_POINTS, keypoint_regressor
+
+            self.regressor = keypoint_regressor(model)
+            self.kin_kp = BodyKinematics(model, regressor=self.regressor)
+            rigid = torch.zeros(self.regressor.n_points, dtype=torch.float32)
+            rigid[list(RIGID_POINTS)] = 1.0
+            self.kp_rigid = rigid
+            self.kp = True
 
     # ---- one chunk --------------------------------------------------------------------
+    def _lm_vis(self, d: FitData) -> np.ndarray:
+        return d.vis if self.cfg.landmark_weight == 1 else d.vis * np.float32(self.cfg.landmark_weight)
+
     def _obs(self, d: FitData) -> Obs:
-        return Obs(torch.as_tensor(d.xy), torch.as_tensor(d.sigma), torch.as_tensor(d.vis))
+        return Obs(torch.as_tensor(d.xy), torch.as_tensor(d.sigma), torch.as_tensor(self._lm_vis(d)))
+
+    def keypoint_sigma(self, d: FitData) -> np.ndarray:
+        """(C, P, T, 33) px: the regressor's per-point error x the person's size in the view."""
+        sig = self.regressor.sigma_frac[None, None, None, :] * d.kp_size[..., None]
+        return np.maximum(sig, self.cfg.keypoint_min_sigma_px).astype(np.float32)
+
+    def keypoint_weights(self, d: FitData) -> np.ndarray:
+        """(C, P, T, 33): visibility x presence x keypoint_weight x L / 33 (see FitConfig)."""
+        balance = d.shape[3] / d.kp_vis.shape[-1]
+        return (d.kp_vis * (d.kp_size[..., None] > 0) * (self.cfg.keypoint_weight * balance)).astype(np.float32)
+
+    def _points(self, d: FitData) -> PointSet | None:
+        if self.kp is None:
+            return None
+        sig = torch.as_tensor(self.keypoint_sigma(d))
+        return PointSet(self.kin_kp, Obs(torch.as_tensor(d.kp_xy), sig[..., None].expand(*sig.shape, 2).contiguous(),
+                                         torch.as_tensor(self.keypoint_weights(d))))
 
     def observed(self, d: FitData) -> np.ndarray:
-        views = (d.vis.sum(-1) > 20).sum(0)  # (P, T)
-        return views >= min(self.cfg.min_views, len(d.rig))
+        seen = self._lm_vis(d).sum(-1) > 20  # (C, P, T)
+        if self.kp is not None:  # a view with a dozen visible keypoints sees the person too
+            seen |= (d.kp_vis > 0.5).sum(-1) >= 12
+        return seen.sum(0) >= min(self.cfg.min_views, len(d.rig))
 
     def initial_state(self, d: FitData) -> tuple[State, dict]:
         C, P, T, L = d.shape
+        vis = self._lm_vis(d)
         _, dirs = finit.rays(d.rig, d.xy)
-        centres, c_ok = finit.body_centres(d.rig, dirs, d.vis)
-        X, info = finit.triangulate(d.rig, dirs, d.xy, d.sigma, d.vis, centres)
-        R, tr, ok = finit.rigid_from_landmarks(self.kin, X, info, centres, c_ok)
+        extra, kp_info = None, None
+        if self.kp is None:
+            centres, c_ok = finit.body_centres(d.rig, dirs, vis)
+        else:  # keypoint rays place the body too (the only rays when landmarks are off)
+            _, kdirs = finit.rays(d.rig, d.kp_xy)
+            kw = self.keypoint_weights(d)
+            centres, c_ok = finit.body_centres(d.rig, np.concatenate([dirs, kdirs], 3), np.concatenate([vis, kw], 3))
+        X, info = finit.triangulate(d.rig, dirs, d.xy, d.sigma, vis, centres)
+        if self.kp is not None:  # triangulated head and trunk keypoints join the torso landmarks' Procrustes
+            from mamma_kit.body.kp_regressor import RIGID_POINTS
+
+            ksig = self.keypoint_sigma(d)
+            Xk, kp_info = finit.triangulate(d.rig, kdirs, d.kp_xy, np.repeat(ksig[..., None], 2, -1), kw, centres)
+            rig_ids = list(RIGID_POINTS)
+            rest_kp = self.kin_kp.rest_points(torch.zeros(1, self.kin.shapedirs.shape[-1], dtype=DTYPE))[0].numpy()
+            extra = (rest_kp[rig_ids], Xk[:, :, rig_ids], kp_info[:, :, rig_ids])
+        R, tr, ok = finit.rigid_from_landmarks(self.kin, X, info, centres, c_ok, extra)
         rot = torch.eye(3, dtype=DTYPE).repeat(P, T, sk.NUM_JOINTS, 1, 1)
         rot[:, :, 0] = torch.as_tensor(R)
         st = State(torch.zeros(P, self.kin.shapedirs.shape[-1], dtype=DTYPE), rot, torch.as_tensor(tr))
-        return st, {"procrustes_frames": float(ok.mean()), "triangulated": float((info > 0).mean()), "ok": ok,
-                    "X": X, "info": info}
+        out = {"procrustes_frames": float(ok.mean()), "triangulated": float((info > 0).mean()), "ok": ok,
+               "X": X, "info": info}
+        if kp_info is not None:
+            out["keypoints_triangulated"] = float((kp_info > 0).mean())
+        return st, out
 
-    def _yaw_starts(self, obs: Obs, st: State, ok: np.ndarray, gcfg: GNConfig, n: int = 4) -> State:
+    def _yaw_starts(self, obs: Obs, st: State, ok: np.ndarray, gcfg: GNConfig, n: int = 4,
+                    points: PointSet | None = None) -> State:
         """Frames without a Procrustes orientation: stage 1 from ``n`` headings about the
         vertical, keeping per person and frame the one with the lowest energy."""
         from mamma_kit.fitting.kinematics import so3_exp
@@ -201,7 +287,8 @@ class Fitter:
         frames = np.flatnonzero((~ok).any(0))
         sub = Obs(obs.xy[:, :, frames], obs.sigma[:, :, frames], obs.w[:, :, frames])
         gn = GaussNewton(self.kin_s1, self.cams, sub,
-                         GNConfig(**{**gcfg.__dict__, "iterations": max(4, gcfg.iterations // 2)}))
+                         GNConfig(**{**gcfg.__dict__, "iterations": max(4, gcfg.iterations // 2)}),
+                         None if points is None else points.frames(torch.as_tensor(frames)))
         best_E, best = None, None
         base = State(st.betas, st.rot[:, frames].clone(), st.transl[:, frames].clone())
         for k in range(n):
@@ -223,7 +310,8 @@ class Fitter:
         st.transl[:, frames] = torch.where(bad[..., None], best.transl, st.transl[:, frames])
         return st
 
-    def repose_limbs(self, obs: Obs, st: State, X: np.ndarray, info: np.ndarray) -> tuple[State, dict]:
+    def repose_limbs(self, obs: Obs, st: State, X: np.ndarray, info: np.ndarray,
+                     points: PointSet | None = None) -> tuple[State, dict]:
         """Arms, hands and fingers re-posed from their own evidence after a first stage 2 (issue 20).
 
         A hand that stage 2 left in a wrong minimum (palm turned 90-180 degrees) stays there:
@@ -246,13 +334,22 @@ class Fitter:
         for w in roots:
             below = np.flatnonzero(self.kin.sub[w] & (np.arange(self.kin.J) != w))
             js = np.r_[w, below]
-            lm = torch.as_tensor(np.isin(W.argmax(1), np.flatnonzero(self.kin.sub[w])), dtype=torch.float32)
+            chain = np.flatnonzero(self.kin.sub[w])
+            lm = torch.as_tensor(np.isin(W.argmax(1), chain), dtype=torch.float32)
+            pts = None
+            if points is not None:  # the chain's keypoints (elbow, wrist, hand points) judge it too
+                pts = points.with_weight(torch.as_tensor(np.isin(self.kin_kp.W.numpy().argmax(1), chain),
+                                                         dtype=torch.float32))
             gn = GaussNewton(self.kin, self.cams, obs, GNConfig(active=(0,), landmark_weight=lm,
                                                                 gamma_start=self.cfg.gamma,
-                                                                wide_frac=self.cfg.repose_compare_frac))
+                                                                wide_frac=self.cfg.repose_compare_frac), pts)
 
             def energy(state: State) -> torch.Tensor:
-                return gn.data_terms(self.kin.forward(state.betas, state.rot, state.transl)["v"], gn.gamma0, jac=False)
+                f = self.kin.forward(state.betas, state.rot, state.transl)
+                e = gn.data_terms(f["v"], gn.gamma0, jac=False)
+                if pts is not None:
+                    e = e + gn.point_terms(gn.point_forward(f, state), gn.p_gamma0, jac=False)
+                return e
 
             def take(cand_rot: torch.Tensor, allowed: torch.Tensor, e_cur: torch.Tensor) -> tuple[torch.Tensor, float]:
                 cand = out.clone()
@@ -284,6 +381,7 @@ class Fitter:
     def stage12(self, d: FitData, betas: np.ndarray | None, stats: dict, stages: int) -> tuple[State, Obs]:
         cfg = self.cfg
         obs = self._obs(d)
+        pts = self._points(d)
         s0 = stats.setdefault("init", StageStats("init"))
         with _Timer(s0):
             st, info = self.initial_state(d)
@@ -296,10 +394,12 @@ class Fitter:
             gcfg = GNConfig(active=(0,), iterations=cfg.s1_iterations, gamma_start=30.0, gamma_end=cfg.gamma)
             sel = torch.as_tensor(self.s1_sel)
             obs1 = Obs(obs.xy[..., sel, :], obs.sigma[..., sel, :], obs.w[..., sel])
+            pts1 = None if pts is None else pts.with_weight(self.kp_rigid)
             if not info["ok"].all():
-                st = self._yaw_starts(obs1, st, info["ok"], gcfg)
-            gn = GaussNewton(self.kin_s1, self.cams, obs1, gcfg)
+                st = self._yaw_starts(obs1, st, info["ok"], gcfg, points=pts1)
+            gn = GaussNewton(self.kin_s1, self.cams, obs1, gcfg, pts1)
             st, _ = gn.run(st, rep)
+            s1.add_terms(rep)
             s1.energy_start += rep.energies[0] if rep.energies else 0.0
             s1.energy_end += rep.energies[-1] if rep.energies else 0.0
             s1.iterations += rep.iterations
@@ -312,18 +412,19 @@ class Fitter:
                 active=self.active_all, iterations=cfg.s2_iterations, max_iterations=2 * cfg.s2_iterations,
                 optimize_betas=betas is None,
                 betas_iterations=cfg.s2_shape_iterations, prior_sigma=cfg.prior_sigma(), gamma_start=30.0,
-                gamma_end=cfg.gamma, wide_frac=cfg.s2_wide_frac))
+                gamma_end=cfg.gamma, wide_frac=cfg.s2_wide_frac), pts)
             st, _ = gn.run(st, rep)
             if cfg.repose_limbs:  # limbs re-posed from their own evidence, then the joint solve again
-                st, taken = self.repose_limbs(obs, st, info["X"], info["info"])
+                st, taken = self.repose_limbs(obs, st, info["X"], info["info"], pts)
                 for k, v in taken.items():
                     s2.extra[f"reposed_from_{k}"] = s2.extra.get(f"reposed_from_{k}", 0.0) + v
                 gn = GaussNewton(self.kin, self.cams, obs, GNConfig(
                     active=self.active_all, iterations=cfg.s2_iterations, max_iterations=2 * cfg.s2_iterations,
                     optimize_betas=betas is None, betas_iterations=cfg.s2_shape_iterations,
                     prior_sigma=cfg.prior_sigma(), gamma_start=30.0, gamma_end=cfg.gamma,
-                    wide_frac=cfg.s2b_wide_frac))
+                    wide_frac=cfg.s2b_wide_frac), pts)
                 st, _ = gn.run(st, rep)
+            s2.add_terms(rep)
             s2.energy_start += rep.energies[0] if rep.energies else 0.0
             s2.energy_end += rep.energies[-1] if rep.energies else 0.0
             s2.iterations += rep.iterations
@@ -385,8 +486,9 @@ class Fitter:
             gn = GaussNewton(self.kin, self.cams, obs3, GNConfig(
                 active=self.active_all, iterations=cfg.s3_iterations, prior_sigma=cfg.prior_sigma(),
                 gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
-                accel_sigma=cfg.accel_sigma, tol=1e-6))
+                accel_sigma=cfg.accel_sigma, tol=1e-6), self._points(d))
             st, _ = gn.run(st, rep)
+            s3.add_terms(rep)
             pose = so3_log(st.rot).numpy()
             transl = st.transl.numpy().copy()
             s3.energy_start += rep.energies[0] if rep.energies else 0.0
@@ -441,7 +543,8 @@ class Fitter:
         gn = GaussNewton(self.kin, self.cams, obs3, GNConfig(
             active=self.active_all, iterations=cfg.s4_iterations, prior_sigma=cfg.prior_sigma(),
             gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
-            accel_sigma=cfg.accel_sigma, tol=1e-6, extra=Terms(parts), mu0=0.1, max_step=(0.05, 0.01)))
+            accel_sigma=cfg.accel_sigma, tol=1e-6, extra=Terms(parts), mu0=0.1, max_step=(0.05, 0.01)),
+            self._points(d))
         if ct is not None:  # count the first refresh's penetrating points (GN's first iteration makes it)
             _first = ct.refresh
 
@@ -457,6 +560,7 @@ class Fitter:
             ct.refresh(f, st.betas, st.transl, force=True)
             ct.evaluate(f, st.betas, st.transl, jac=False)
             s4.extra["inside_points_end"] = s4.extra.get("inside_points_end", 0) + ct.stats["inside_points"]
+        s4.add_terms(rep)
         s4.energy_start += rep.energies[0] if rep.energies else 0.0
         s4.energy_end += rep.energies[-1] if rep.energies else 0.0
         s4.iterations += rep.iterations
