@@ -1,4 +1,5 @@
-"""Clap sync accuracy and speed: mamma-kit vs BBC audio-offset-finder vs syncstart.
+"""Sync accuracy and speed: mamma-kit's clap sync vs BBC audio-offset-finder vs syncstart, and
+mamma-kit's motion and flash sync on rendered captures without audio.
 
 The same synthetic phone captures (H.264 + AAC files, VFR frames, SNR 10 dB, reverberation,
 clock offsets and drift, sound travel) go through `mamma-kit sync` and through both peers,
@@ -8,6 +9,16 @@ mapping to the reference camera against the true clocks, at the start and the en
 take; peers give one constant offset, so their error grows with drift.
 
     nice -n 10 /work/venv/bin/python benchmarks/sync_vs_peers.py [--quick] [--skip-peers]
+        [--video-only | --audio-only] [--scale 0.3]
+
+Motion and flash rows: recipes iphone-outdoor-duo and crowd-6 rendered with the audio removed
+(no claps, LTC or tmcd), 4 cameras, the recipes' unrelated clock offsets (several frames), drift
+(+-25 ppm) and VFR jitter, at 30 and 60 fps, a torch flashed in view (on, then off 0.5 s later;
+exposure 0.5-1 frame, rolling-shutter readout 0.3-0.8 frame, per camera). Then, as a user would:
+`track --backend pose`, `keypoints`, `sync --method motion` (with the true calibration, so only the
+sync is measured), `sync --method flash` and `sync` (auto). The 2-minute drift take renders only
+three 3-second windows (start, middle, end; render.windows_s), the frames a line fit through the
+windows' offsets needs, at a tenth of the cost of the whole take.
 """
 
 from __future__ import annotations
@@ -133,13 +144,154 @@ def run_syncstart(exe: Path, ref: Path, cam: Path, take: float = 20.0) -> tuple[
     return sec, dt
 
 
+# ---- motion and flash sync on rendered captures without audio ------------------------------
+VIDEO_CASES = [
+    dict(name="duo, 4 cams, 30 fps", recipe="iphone-outdoor-duo", fps=30.0, duration_s=3.0, flash=[1.2]),
+    # leads of 3-18 frames (not the recipe's 0.1-0.9 s): the frames before the action cost rendering
+    dict(name="duo, 4 cams, 60 fps", recipe="iphone-outdoor-duo", fps=60.0, duration_s=1.5, flash=[0.6],
+         offset_s=[0.05, 0.3]),
+    dict(name="crowd-6, 4 cams, 30 fps", recipe="crowd-6", fps=30.0, duration_s=2.5, flash=[1.0], count=4,
+         scale=0.45),
+    # 2 minutes at 20 fps, rendered in three 3-second windows (start, middle, end)
+    dict(name="duo, 4 cams, 20 fps, 2 min (3 windows)", recipe="iphone-outdoor-duo", fps=20.0, duration_s=120.0,
+         flash=[1.2, 59.7, 117.7], windows=[[0.0, 3.0], [58.5, 61.5], [117.0, 120.0]]),
+]
+
+
+def video_recipe(case: dict, out: Path, scale: float) -> Path:
+    """The case's recipe: the named one with the audio removed, a flash, the case's rate and length."""
+    import tomllib
+
+    from mamma_kit.core.io import write_toml
+    from mamma_kit.synth.recipe import find_recipe
+
+    r = tomllib.loads(find_recipe(case["recipe"]).read_text())
+    fps = case["fps"]
+    r["name"] = f"{r['name']}-nosound-{int(fps)}fps"
+    r["fps"], r["duration_s"] = fps, case["duration_s"]
+    if "count" in case:
+        r["rig"]["count"] = case["count"]
+    r["rig"]["clock"]["drift_ppm"] = [-25.0, 25.0]
+    if "offset_s" in case:
+        r["rig"]["clock"]["offset_s"] = case["offset_s"]
+    r["audio"] = {"enabled": False}
+    r.pop("board", None)
+    r["flash"] = {"t": case["flash"], "duration_s": 0.5, "gain": 0.8, "exposure_s": [0.5 / fps, 1.0 / fps],
+                  "readout_s": [0.3 / fps, 0.8 / fps]}
+    r.setdefault("render", {})["scale"] = case.get("scale", scale)
+    if case.get("windows"):
+        r["render"]["windows_s"] = case["windows"]
+    path = out / f"{r['name']}-{len(case.get('windows') or [])}w.toml"
+    write_toml(path, r)
+    return path
+
+
+def run_cli(*args) -> tuple[str, float]:
+    exe = Path(sys.executable).parent / "mamma-kit"
+    t0 = time.perf_counter()
+    r = subprocess.run([str(exe), *map(str, args)], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"mamma-kit {' '.join(map(str, args))}: {r.stderr.strip()[-600:]}")
+    return r.stdout, time.perf_counter() - t0
+
+
+def make_video_case(case: dict, root: Path, scale: float) -> dict:
+    """Render (or reuse) the case's workspace and run track + keypoints on it."""
+    ws = root / re.sub(r"[^a-z0-9]+", "-", case["name"].lower()).strip("-")
+    secs = {}
+    if not (ws / "gt" / "synth.json").is_file():
+        root.mkdir(parents=True, exist_ok=True)
+        _, secs["render"] = run_cli("synth", video_recipe(case, root, scale), "--out", ws, "--no-board", "-q")
+    shutil.copyfile(ws / "gt" / "calibration.toml", ws / "calibration.toml")
+    people = json.loads((ws / "gt" / "synth.json").read_text())["people"]
+    _, secs["track"] = run_cli("track", ws, "--backend", "pose", "--people", people, "-q")
+    _, secs["keypoints"] = run_cli("keypoints", ws, "-q")
+    return dict(case, ws=ws, seconds=secs)
+
+
+def gt_clocks(ws: Path) -> dict:
+    from mamma_kit.core.timingfile import read_timing
+
+    return read_timing(ws / "gt" / "timing.toml")[0]
+
+
+def video_rows(case: dict) -> list[tuple]:
+    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.timing.fit import relative_clock
+    from mamma_kit.video import VideoReader
+
+    ws = case["ws"]
+    gt = gt_clocks(ws)
+    rows = []
+    # what a user reads from each phone's metadata (or sets): its exposure time
+    from mamma_kit.core.io import read_toml, write_toml
+
+    exposures = {n: c["diagnostics"]["exposure_s"] for n, c in read_toml(ws / "gt" / "timing.toml")["cameras"].items()}
+    write_toml(ws / "exposure.toml", {"flash": {"exposure_s": exposures}})
+    for method, extra in (("motion", []), ("flash", []), ("flash", ["--preset", ws / "exposure.toml"]),
+                          ("auto", ["--preset", ws / "exposure.toml"])):
+        out = ws / f"timing_{method}{'_exposure' if extra else ''}.toml"
+        try:
+            _, dt = run_cli("sync", ws, "--method", method, *extra, "--out", out, "--no-plots", "-q")
+        except RuntimeError as e:
+            print(f"# {case['name']}: {method} failed: {e}")
+            continue
+        est, meta = read_timing(out)
+        for n, c in est.items():
+            if n == meta["reference"]:
+                continue
+            o_t, r_t = relative_clock(gt[n], gt[meta["reference"]])
+            ts = VideoReader(ws / "videos" / f"{n}.mp4").timestamps
+            e0, e1 = (((1 + c.rate) * t + c.offset - ((1 + r_t) * t + o_t)) * 1e3 for t in (ts[0], ts[-1]))
+            label = f"mamma-kit {method}" + (" (exposure given)" if method == "flash" and extra else "") + \
+                (f" (chose {meta['method']})" if method == "auto" else "")
+            rows.append((case["name"], n, label, e0, e1, c.rate_ppm, (c.rate - r_t) * 1e6, c.confidence, dt))
+    return rows
+
+
+def video_main(args) -> None:
+    t0 = time.perf_counter()
+    cases = [c for c in VIDEO_CASES if not args.quick or "2 min" not in c["name"]]
+    rows = []
+    for c in cases:
+        done = make_video_case(c, args.out / "video", args.scale)
+        print(f"# {c['name']}: " + ", ".join(f"{k} {v:.0f} s" for k, v in done["seconds"].items()), flush=True)
+        rows += video_rows(done)
+    print(f"# video cases in {time.perf_counter() - t0:.0f} s")
+    print()
+    print("| capture (no audio) | camera | tool | error at start (ms) | error at end (ms) | drift found (ppm) | "
+          "drift error (ppm) | confidence | time (s) |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:+.3f} | {r[4]:+.3f} | {r[5]:+.1f} | {r[6]:+.1f} | {r[7]:.2f} | "
+              f"{r[8]:.1f} |")
+    print()
+    print("| method | captures | worst offset error (ms) | median (ms) | worst drift error, 2-min take (ppm) |")
+    print("|---|---|---:|---:|---:|")
+    for m in ("mamma-kit motion", "mamma-kit flash (exposure given)", "mamma-kit flash", "mamma-kit auto"):
+        sel = [r for r in rows if r[2].startswith(m) and (m != "mamma-kit flash" or "given" not in r[2])]
+        if not sel:
+            continue
+        errs = [max(abs(r[3]), abs(r[4])) for r in sel]
+        drift = [abs(r[6]) for r in sel if "2 min" in r[0]]
+        print(f"| {m} | {len(set(r[0] for r in sel))} | {max(errs):.3f} | {np.median(errs):.3f} | "
+              f"{max(drift) if drift else float('nan'):.1f} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("/tmp/mk-sync-bench"))
     ap.add_argument("--quick", action="store_true", help="skip the 5-minute take")
     ap.add_argument("--skip-peers", action="store_true")
+    ap.add_argument("--video-only", action="store_true", help="only the motion and flash rows")
+    ap.add_argument("--audio-only", action="store_true", help="only the clap rows and the peers")
+    ap.add_argument("--scale", type=float, default=0.3, help="render scale of the motion and flash captures")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    if not args.audio_only:
+        video_main(args)
+        if args.video_only:
+            return
     peers = {}
     if not args.skip_peers:
         if shutil.which("ffmpeg") is None:

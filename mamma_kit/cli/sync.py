@@ -34,7 +34,7 @@ def sync_cmd(
                                                                       "(default: the first)."),
     out: Optional[Path] = typer.Option(None, "--out", help="timing.toml to write (default: WORKSPACE/timing.toml, "
                                                            "or beside the first video)."),
-    preset: Optional[str] = typer.Option(None, "--preset", help="A preset from sync/ (clap, ltc-25, ltc-30, tmcd) "
+    preset: Optional[str] = typer.Option(None, "--preset", help="A preset from sync/ (clap, ltc-25, ltc-30, tmcd, flash) "
                                                                 "or a TOML file."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write diagnostic PNGs."),
     force: bool = typer.Option(False, "--force", help="Workspace: recompute even if nothing changed."),
