@@ -125,6 +125,36 @@ class PoseEstimator:
     def rois_from_detections(dets: Detections) -> np.ndarray:
         return bp.roi_from_points(dets.points[:, 0], dets.points[:, 1])
 
+    def rois_for_boxes(self, image_hw3: np.ndarray, boxes_n4: np.ndarray, masks: list | None = None) -> np.ndarray:
+        """(N, 4) an ROI for the person in each box: the detector on the box's region (the rest
+        blanked by its mask), the detection nearest the box's centre (the box's person, not a
+        neighbour); where it finds none, the box itself, upright, covering its longer side."""
+        boxes_n4 = np.asarray(boxes_n4, np.float64).reshape(-1, 4)
+        rois = np.zeros((len(boxes_n4), 4))
+        for j, (box, d) in enumerate(zip(boxes_n4, self.detect_regions(image_hw3, boxes_n4, masks))):
+            if len(d):
+                c = (box[:2] + box[2:]) / 2
+                best = int(np.argmin(np.linalg.norm(d.points[:, 0] - c, axis=1) - 1e3 * d.scores))
+                rois[j] = self.rois_from_detections(d)[best]
+            else:
+                w, h = box[2] - box[0], box[3] - box[1]
+                rois[j] = [(box[0] + box[2]) / 2, (box[1] + box[3]) / 2, 1.15 * max(w, h), 0.0]
+        return rois
+
+    def person_points(self, image_hw3: np.ndarray, box_4: np.ndarray, mask_hw: np.ndarray | None = None
+                      ) -> np.ndarray:
+        """(33, 5) x, y px, z, visibility, presence of the one person in ``box`` (NaN where the pose
+        flag is below MIN_FOLLOW_FLAG): found as where a track starts, then run once more on the
+        ROI its own points give, as on the frames after (training inputs that match the stage's)."""
+        masks = None if mask_hw is None else [mask_hw]
+        res = self.landmarks(image_hw3, self.rois_for_boxes(image_hw3, box_4, masks), masks=masks)
+        if res.score[0] >= MIN_FOLLOW_FLAG:
+            res = self.landmarks(image_hw3, res.next_rois, masks=masks)
+        out = np.full((bp.N_POINTS, 5), np.nan, np.float32)
+        if res.score[0] >= MIN_FOLLOW_FLAG:
+            out[:, :2], out[:, 2], out[:, 3], out[:, 4] = res.xy[0], res.z[0], res.visibility[0], res.presence[0]
+        return out
+
     # ---- landmarks --------------------------------------------------------------------------------
     def landmarks(self, image_hw3: np.ndarray, rois_n4: np.ndarray, segmentation: bool = False,
                   masks: list | None = None) -> PoseResult:

@@ -36,12 +36,6 @@ def _follow_ok(roi_4: np.ndarray, box_4: np.ndarray) -> bool:
     return bool(inside and lo * max(w, h) <= roi_4[2] <= hi * max(w, h))
 
 
-def _box_roi(box_4: np.ndarray) -> np.ndarray:
-    """A fallback ROI: the box's centre, upright, covering its longer side."""
-    w, h = box_4[2] - box_4[0], box_4[3] - box_4[1]
-    return np.array([(box_4[0] + box_4[2]) / 2, (box_4[1] + box_4[3]) / 2, 1.15 * max(w, h), 0.0])
-
-
 def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
                          progress_label: str | None = None) -> tuple[KeypointTracks, dict]:
     """33 points for every (frame, track) of one camera's mask tracks, streaming the video once."""
@@ -77,16 +71,8 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
                 else:
                     need.append(j)
             if need:
-                dets = est.detect_regions(img, boxes[need], [mlist[j] for j in need] if blank else None)
-                for j, d in zip(need, dets):
-                    n_det += 1
-                    if len(d):
-                        # the detection nearest the box's centre (the track's person, not a neighbour)
-                        c = (boxes[j, :2] + boxes[j, 2:]) / 2
-                        best = int(np.argmin(np.linalg.norm(d.points[:, 0] - c, axis=1) - 1e3 * d.scores))
-                        rois[j] = est.rois_from_detections(d)[best]
-                    else:
-                        rois[j] = _box_roi(boxes[j])
+                rois[need] = est.rois_for_boxes(img, boxes[need], [mlist[j] for j in need] if blank else None)
+                n_det += len(need)
             res = est.landmarks(img, rois, masks=mlist if blank else None)
             ok = res.score >= MIN_FOLLOW_FLAG
             for j, k in enumerate(cols):

@@ -44,6 +44,11 @@ class AugmentConfig:
     p_occluder: float = 0.3
     p_mask_corrupt: float = 0.7
     p_no_mask: float = 0.07
+    # keypoint inputs (keypoint-guided models): the keypoint model's own errors come with the data;
+    # these add its failures: a point dropped, all points missing, a small extra jitter (box heights)
+    p_kp_drop_point: float = 0.05
+    p_kp_missing: float = 0.04
+    kp_jitter: float = 0.005
 
     @classmethod
     def from_dict(cls, d: dict) -> "AugmentConfig":
@@ -56,7 +61,8 @@ class AugmentConfig:
     @classmethod
     def none(cls) -> "AugmentConfig":
         return cls(scale=(1.0, 1.0), translate=0.0, p_rotate=0.0, p_part_crop=0.0, p_photometric=0.0, p_blur=0.0,
-                   p_noise=0.0, p_jpeg=0.0, p_downup=0.0, p_occluder=0.0, p_mask_corrupt=0.0, p_no_mask=0.0)
+                   p_noise=0.0, p_jpeg=0.0, p_downup=0.0, p_occluder=0.0, p_mask_corrupt=0.0, p_no_mask=0.0,
+                   p_kp_drop_point=0.0, p_kp_missing=0.0, kp_jitter=0.0)
 
 
 def _crop_box(tight_4: np.ndarray, xy_l2: np.ndarray, aug: AugmentConfig, rng: np.random.Generator) -> np.ndarray:
@@ -189,10 +195,23 @@ def corrupt_mask(mask: np.ndarray, others: np.ndarray, uv_l2: np.ndarray, rng: n
     return m
 
 
+def _augment_keypoints(kp_p5: np.ndarray, box_h_n: float, aug: AugmentConfig, rng: np.random.Generator) -> np.ndarray:
+    kp = kp_p5.copy()
+    if aug.p_kp_missing and rng.random() < aug.p_kp_missing:
+        return np.zeros_like(kp)
+    present = kp[:, 4] > 0
+    if aug.kp_jitter:
+        kp[present, :2] += rng.normal(0, aug.kp_jitter * box_h_n, (int(present.sum()), 2))
+    if aug.p_kp_drop_point:
+        kp[present & (rng.random(len(kp)) < aug.p_kp_drop_point)] = 0
+    return kp
+
+
 def prepare_sample(sample: dict, out_wh: tuple[int, int], rule: str, aug: AugmentConfig | None,
                    rng: np.random.Generator) -> dict[str, np.ndarray]:
     """One shard sample -> image (H, W, 3) uint8, mask (H, W) uint8, xy_n (L, 2) float32 normalised,
-    visibility / contact / floor_contact (L,) float32, box_h (float: the tight box height in crop px)."""
+    visibility / contact / floor_contact (L,) float32, box_h (float: the tight box height in crop px);
+    with the others' mask ``others`` (H, W) uint8, and ``keypoints`` (P, 5) where the shard has them."""
     aug = aug or AugmentConfig.none()
     xy = np.asarray(sample["xy"], np.float64)
     # the inference contract boxes the mask (min/max pixel indices); the shard's box is the fallback
@@ -215,8 +234,12 @@ def prepare_sample(sample: dict, out_wh: tuple[int, int], rule: str, aug: Augmen
     if aug.p_no_mask and rng.random() < aug.p_no_mask:
         mask = np.zeros_like(mask)
     scale_y = float(np.hypot(M[1, 0], M[1, 1]))
+    extra = {"others": others.astype(np.uint8)}
+    if "keypoints" in sample:
+        kp = C.crop_keypoints(sample["keypoints"], M, out_wh)
+        extra["keypoints"] = _augment_keypoints(kp, (tight[3] - tight[1]) * scale_y * 2.0 / out_wh[1], aug, rng)
     return {
-        "image": img, "mask": mask,
+        **extra, "image": img, "mask": mask,
         "xy_n": C.crop_to_normalised(uv, out_wh).astype(np.float32),
         "visibility": vis, "contact": np.asarray(sample["contact"], np.float32),
         "floor_contact": np.asarray(sample["floor_contact"], np.float32),

@@ -75,6 +75,18 @@ class MammaNetConfig:
     detach_decoder_memory: bool = False
     # pre-processing: "official" d = max(box) / (2 * W_in); "scale" d = true downscale factor
     antialias: str = "scale"
+    # keypoint guidance (keypoint-guided configs): the keypoint model's points of the target
+    # (B, keypoints_in, 5: x, y normalised, z, visibility, presence) enter the conv stem as Gaussian
+    # maps (sigma kp_map_sigma x input height); ``others_in_stem`` adds the other people's mask
+    keypoints_in: int = 0
+    kp_map_sigma: float = 0.025
+    others_in_stem: bool = False
+    # "detr": the paper's decoder over landmark queries; "sampled": positions from a keypoint prior
+    # (an MLP in the keypoints' own centre and scale) refined ``refine_steps`` times from features
+    # sampled around each landmark (no decoder; keypoint-guided configs only)
+    head: str = "detr"
+    refine_steps: int = 2
+    head_channels: int = 64
 
     # ---- derived ----------------------------------------------------------------------
     @property
@@ -106,6 +118,13 @@ class MammaNetConfig:
             raise UserError(f"MammaNet config {self.name}: mask_in_stem needs stem = 'conv' and use_mask")
         if self.queries not in ("per_landmark", "single"):
             raise UserError(f"MammaNet config {self.name}: queries must be 'per_landmark' or 'single'")
+        if self.head not in ("detr", "sampled"):
+            raise UserError(f"MammaNet config {self.name}: head must be 'detr' or 'sampled'")
+        if (self.keypoints_in or self.others_in_stem) and self.stem != "conv":
+            raise UserError(f"MammaNet config {self.name}: keypoint maps and the others' mask need stem = 'conv'")
+        if self.head == "sampled" and (not self.keypoints_in or self.dense_head or self.stem != "conv"):
+            raise UserError(f"MammaNet config {self.name}: head = 'sampled' needs keypoints_in > 0, a conv stem "
+                            "and no dense head")
         if self.antialias not in ("official", "scale"):
             raise UserError(f"MammaNet config {self.name}: antialias must be 'official' or 'scale'")
         if self.use_mask:
@@ -163,6 +182,14 @@ EMBEDDED_256 = MammaNetConfig(
     use_mask=True, mask_strides=(4, 4), dec_layers=3, dec_heads=4, dec_ffn=768,
 )
 
+# keypoint-guided: BlazePose's 33 points (and the other people's mask) as inputs, a keypoint prior
+# refined from sampled image features; trains in about an hour on 2 CPU cores to a few % of the box
+EMBEDDED_KP = MammaNetConfig(
+    name="embedded-kp", input_hw=(160, 120), stem="conv", patch=8, dim=128, depth=3, heads=4, mlp_dim=512,
+    use_mask=True, mask_channels=(4, 16), mask_strides=(4, 2), dec_layers=1, dec_heads=4, dec_ffn=256,
+    mask_in_stem=True, keypoints_in=33, others_in_stem=True, head="sampled", head_channels=48,
+)
+
 TINY = MammaNetConfig(
     name="tiny", input_hw=(64, 48), patch=8, dim=32, depth=2, heads=2, mlp_dim=64, mask_strides=(4, 2),
     dec_layers=1, dec_heads=2, dec_ffn=64, n_landmarks=16,
@@ -170,7 +197,9 @@ TINY = MammaNetConfig(
 
 CONFIGS: dict[str, MammaNetConfig] = {
     c.name: c for c in (
-        OFFICIAL, EMBEDDED, EMBEDDED_256, TINY,
+        OFFICIAL, EMBEDDED, EMBEDDED_KP, EMBEDDED_256, TINY,
+        replace(TINY, name="tiny-kp", stem="conv", patch=8, mask_in_stem=True, keypoints_in=33,
+                others_in_stem=True, head="sampled", head_channels=16),
         replace(EMBEDDED, name="embedded-single", queries="single"),
         replace(EMBEDDED, name="embedded-nomask", use_mask=False, mask_in_stem=False),
         replace(OFFICIAL, name="official-single", queries="single"),

@@ -213,3 +213,21 @@ def mask_tensor(masks_bhw: np.ndarray | None, device: str | torch.device = "cpu"
     if masks_bhw is None:
         return None
     return (torch.as_tensor(np.asarray(masks_bhw)) > 0).to(device=device, dtype=torch.float32)[:, None]
+
+
+# ---- keypoint inputs -----------------------------------------------------------------------------
+def crop_keypoints(kp_px_p5: np.ndarray, M_23: np.ndarray, out_wh: tuple[int, int]) -> np.ndarray:
+    """Keypoints (P, 5: x, y px, z px-scaled, visibility, presence; NaN x where absent) of an image ->
+    the network's input (P, 5) in the crop M_23 cuts: x, y normalised, z in the same units,
+    absent points all zero. Training and inference both convert through here."""
+    kp = np.asarray(kp_px_p5, np.float64)
+    ok = np.isfinite(kp[:, :2]).all(1) & np.isfinite(kp[:, 2])
+    out = np.zeros((len(kp), 5), np.float32)
+    if ok.any():
+        uv = apply_affine(M_23, kp[ok, :2])
+        out[ok, :2] = crop_to_normalised(uv, out_wh)
+        scale = float(np.sqrt(abs(np.linalg.det(M_23[:, :2]))))  # image px -> crop px
+        out[ok, 2] = kp[ok, 2] * scale * 2.0 / out_wh[1]
+        out[ok, 3] = np.clip(kp[ok, 3], 0, 1)
+        out[ok, 4] = np.clip(kp[ok, 4], 1e-3, 1)  # > 0 marks the point present
+    return out

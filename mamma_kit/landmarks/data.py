@@ -15,6 +15,10 @@ Format (one folder)::
                                                                training boxes the instance map itself as
                                                                inference boxes the mask; box is the fallback)
                              [landmark_part (L,) int, optional, same meaning as in meta.json]
+    DIR/keypoints_NNNN.npz   keypoints     (N, 33, 5) float32  the keypoint model's points of the target in
+                             model         str                 the crop (x, y crop px, z, visibility, presence;
+                                                               NaN where it found no pose), written by
+                                                               ``annotate_keypoints`` for keypoint-guided models
 
 :class:`CropShards` reads one or more such folders lazily (a few decompressed shards cached) and
 gives a deterministic sample order per (seed, epoch) that visits shards one after another, so
@@ -99,6 +103,11 @@ class CropShards:
                 "seeds": sorted({str(s) for m in self.meta for s in _as_list(m.get("seeds", m.get("seed")))})}
 
     # ---- access ---------------------------------------------------------------------------
+    @property
+    def has_keypoints(self) -> bool:
+        """Every shard has its keypoints file (``annotate_keypoints``)."""
+        return all(keypoints_path(s.path).is_file() for s in self.shards)
+
     def shard_arrays(self, j: int) -> dict[str, np.ndarray]:
         if j in self._cache:
             self._cache.move_to_end(j)
@@ -108,6 +117,9 @@ class CropShards:
         if missing:
             raise UserError(f"crop shard {self.shards[j].path} is missing {', '.join(missing)}",
                             "regenerate it with `mamma-kit synth --crops`")
+        kp = keypoints_path(self.shards[j].path)
+        if kp.is_file():
+            d["keypoints"] = read_npz(kp, "crop keypoints")["keypoints"]
         self._cache[j] = d
         while len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
@@ -120,7 +132,7 @@ class CropShards:
     def __getitem__(self, i: int) -> dict[str, np.ndarray]:
         j, k = self.locate(int(i))
         d = self.shard_arrays(j)
-        out = {key: d[key][k] for key in SHARD_KEYS}
+        out = {key: d[key][k] for key in SHARD_KEYS + (("keypoints",) if "keypoints" in d else ())}
         out["index"] = np.int64(i)
         return out
 
@@ -144,6 +156,48 @@ class CropShards:
             sel = pos // n == e
             out[sel] = self.epoch_order(seed, int(e))[pos[sel] % n]
         return out
+
+
+def keypoints_path(shard: Path) -> Path:
+    return shard.with_name(shard.name.replace("shard_", "keypoints_"))
+
+
+def annotate_keypoints(dirs: list[str | Path] | str | Path, force: bool = False, threads: int | None = None) -> dict:
+    """Run the keypoint model on every crop of the shard folders, as the keypoints stage runs it on
+    a frame (the target's mask blanks the rest): DIR/keypoints_NNNN.npz beside each shard, so the
+    network learns from the detector's real errors. Shards already annotated are skipped."""
+    import time
+
+    from mamma_kit.core import log
+    from mamma_kit.keypoints.estimator import PoseEstimator
+    from mamma_kit.keypoints.stage import MODEL_NAME
+
+    dirs = [dirs] if isinstance(dirs, (str, Path)) else list(dirs)
+    shards = [f for d in dirs for f in sorted(Path(d).glob("shard_*.npz"))]
+    todo = [f for f in shards if force or not keypoints_path(f).is_file()]
+    if not todo:
+        return {"crops": 0, "with_pose": 0, "shards": 0, "skipped": len(shards), "seconds": 0.0}
+    log.info(f"running the keypoint model on {len(todo)} crop shards (once; kept beside them)")
+    est = PoseEstimator(threads)
+    n = found = 0
+    t0 = time.perf_counter()
+    with log.progress("crop keypoints", sum(_shard_len(f) for f in todo)) as advance:
+        for f in todo:
+            d = read_npz(f, "crop shard")
+            kp = np.full((len(d["images"]), 33, 5), np.nan, np.float32)
+            for i, (img, inst) in enumerate(zip(d["images"], d["instance"])):
+                mask = inst == 1
+                ys, xs = np.nonzero(mask)
+                if len(xs):
+                    kp[i] = est.person_points(img, np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1.0]), mask)
+                advance(1)
+            write_npz(keypoints_path(f), keypoints=kp, model=np.array(MODEL_NAME))
+            n += len(kp)
+            found += int(np.isfinite(kp[:, 0, 0]).sum())
+    secs = time.perf_counter() - t0
+    log.info(f"keypoints for {n} crops ({found} with a pose) in {secs:.0f} s")
+    return {"crops": n, "with_pose": found, "shards": len(todo), "skipped": len(shards) - len(todo),
+            "seconds": round(secs, 1)}
 
 
 def _as_list(v) -> list:

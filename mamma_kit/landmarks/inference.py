@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
+import cv2
 import numpy as np
 import torch
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn, \
@@ -26,7 +27,7 @@ from rich.text import Text
 
 from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
-from mamma_kit.core.tracks import LandmarkTracks, MaskTracks
+from mamma_kit.core.tracks import KeypointTracks, LandmarkTracks, MaskTracks
 from mamma_kit.landmarks import crop as C
 from mamma_kit.landmarks.weights import LoadedModel
 
@@ -60,13 +61,39 @@ class Predictor:
                                 rule=self.cfg.antialias)
         return img, m, box
 
+    @property
+    def needs_keypoints(self) -> bool:
+        return self.cfg.keypoints_in > 0
+
+    def crop_inputs(self, image_hw3: np.ndarray, box_n4: np.ndarray, keypoints_p5: np.ndarray | None = None,
+                    others_hw: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The keypoint-guided inputs of one crop: ``keypoints`` (P, 5) (absent where None) and
+        ``others`` (H_in, W_in) uint8, the other people's mask in the crop (empty where None)."""
+        M = C.crop_affine(box_n4, self.out_wh)
+        out = {}
+        if self.cfg.keypoints_in:
+            out["keypoints"] = np.zeros((self.cfg.keypoints_in, 5), np.float32) if keypoints_p5 is None \
+                else C.crop_keypoints(keypoints_p5, M, self.out_wh)
+        if self.cfg.others_in_stem:
+            W, H = self.out_wh
+            out["others"] = np.zeros((H, W), np.uint8) if others_hw is None or not others_hw.any() else \
+                cv2.warpAffine(others_hw.astype(np.uint8), M, (W, H), flags=cv2.INTER_NEAREST,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return out
+
     @torch.inference_mode()
-    def predict_crops(self, crops_bhw3: np.ndarray, masks_bhw: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    def predict_crops(self, crops_bhw3: np.ndarray, masks_bhw: np.ndarray | None = None,
+                      keypoints_bp5: np.ndarray | None = None, others_bhw: np.ndarray | None = None
+                      ) -> dict[str, np.ndarray]:
         """Network outputs for a batch of crops: xy_n (B, L, 2) in [-1, 1], log_sigma (B, L), and
-        visibility / contact / floor_contact probabilities (B, L)."""
+        visibility / contact / floor_contact probabilities (B, L). ``keypoints_bp5`` / ``others_bhw``:
+        the keypoint-guided inputs of ``crop_inputs`` (ignored by models that do not read them)."""
         x = C.normalise_images(crops_bhw3, self.device)
         m = C.mask_tensor(masks_bhw, self.device) if self.cfg.use_mask else None
-        out = self.model(x, m)
+        kp = torch.as_tensor(keypoints_bp5, device=self.device) if self.cfg.keypoints_in and keypoints_bp5 is not None \
+            else None
+        oth = C.mask_tensor(others_bhw, self.device) if self.cfg.others_in_stem and others_bhw is not None else None
+        out = self.model(x, m, kp, oth)
         return {"xy_n": out["xy"].float().cpu().numpy(), "log_sigma": out["log_sigma"].float().cpu().numpy(),
                 "visibility": torch.sigmoid(out["vis_logit"]).float().cpu().numpy(),
                 "contact": torch.sigmoid(out["contact_logit"]).float().cpu().numpy(),
@@ -78,20 +105,46 @@ class Predictor:
         return {"xy": C.normalised_to_image(net["xy_n"], boxes_b4), "sigma": C.sigma_to_pixels(net["log_sigma"], boxes_b4),
                 "visibility": net["visibility"], "contact": net["contact"], "floor_contact": net["floor_contact"]}
 
-    def predict_image(self, image_hw3: np.ndarray, masks: list[np.ndarray]) -> dict[str, np.ndarray]:
-        """Landmarks in image px for each person mask of one image (persons with empty masks get NaN)."""
+    def predict_image(self, image_hw3: np.ndarray, masks: list[np.ndarray],
+                      keypoints: list[np.ndarray | None] | None = None) -> dict[str, np.ndarray]:
+        """Landmarks in image px for each person mask of one image (persons with empty masks get NaN);
+        ``keypoints``: each person's (P, 5) points in image px (keypoint-guided models)."""
         P, L = len(masks), self.n_landmarks
         out = {"xy": np.full((P, L, 2), np.nan), "sigma": np.full((P, L, 2), np.nan),
                "visibility": np.zeros((P, L)), "contact": np.zeros((P, L)), "floor_contact": np.zeros((P, L))}
         crops = [self.crop(image_hw3, m) for m in masks]
         keep = [i for i, c in enumerate(crops) if c is not None]
         if keep:
+            extra = [self.crop_inputs(image_hw3, crops[i][2], keypoints[i] if keypoints else None,
+                                      others_mask(masks, i)) for i in keep]
             net = self.predict_crops(np.stack([crops[i][0] for i in keep]),
-                                     np.stack([crops[i][1] for i in keep]) if self.cfg.use_mask else None)
+                                     np.stack([crops[i][1] for i in keep]) if self.cfg.use_mask else None,
+                                     *stack_extra(extra))
             res = self.to_image(net, np.stack([crops[i][2] for i in keep]))
             for key in out:
                 out[key][keep] = res[key]
         return out
+
+
+def others_mask(masks: list[np.ndarray | None], i: int) -> np.ndarray | None:
+    """The union of every mask but the i-th (None when there is no other)."""
+    rest = [m for j, m in enumerate(masks) if j != i and m is not None]
+    return np.logical_or.reduce(rest) if rest else None
+
+
+def stack_extra(extra: list[dict]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(keypoints (B, P, 5) or None, others (B, H, W) or None) from ``crop_inputs`` dicts."""
+    if not extra:
+        return None, None
+    return tuple(np.stack([e[k] for e in extra]) if k in extra[0] else None for k in ("keypoints", "others"))
+
+
+def track_points(kt: KeypointTracks, t: int, k: int) -> np.ndarray | None:
+    """(P, 5) x, y, z, visibility, presence of track column k at frame t, None without a pose."""
+    if not kt.valid[t, k]:
+        return None
+    return np.concatenate([kt.xy[t, k], kt.z[t, k, :, None], kt.visibility[t, k, :, None],
+                           kt.presence[t, k, :, None]], 1)
 
 
 # ---- progress with crops/s --------------------------------------------------------------------
@@ -128,18 +181,30 @@ class _Job:
     image: np.ndarray
     mask: np.ndarray | None
     box: np.ndarray
+    extra: dict
 
 
 def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, np.ndarray]],
-               todo: np.ndarray) -> Iterator[_Job]:
+               todo: np.ndarray, keypoints: KeypointTracks | None) -> Iterator[_Job]:
     boxes = C.tight_box_from_track_box(masks.boxes)
+    guided = pred.needs_keypoints
     for t, img in frames:
-        for k in np.flatnonzero(todo[t]):
-            m = masks.mask(t, k)
+        cols = np.flatnonzero(todo[t])
+        # the other people's masks come from every track present in the frame, not only those cropped
+        all_cols = np.flatnonzero(masks.present[t]) if guided else cols
+        mlist = {int(k): masks.mask(t, k) for k in all_cols}
+        for k in cols:
+            m = mlist[int(k)]
             tb = boxes[t, k] if np.all(np.isfinite(boxes[t, k])) else C.mask_box(m)
             res = pred.crop(img, m, tb)
-            if res is not None:
-                yield _Job(int(t), int(k), res[0], res[1], res[2])
+            if res is None:
+                continue
+            extra = {}
+            if guided:
+                keys = list(mlist)
+                extra = pred.crop_inputs(img, res[2], track_points(keypoints, t, k) if keypoints else None,
+                                         others_mask([mlist[j] for j in keys], keys.index(int(k))))
+            yield _Job(int(t), int(k), res[0], res[1], res[2], extra)
 
 
 def _threaded(gen_fn: Callable[[], Iterator], maxsize: int) -> Iterator:
@@ -179,8 +244,11 @@ def _threaded(gen_fn: Callable[[], Iterator], maxsize: int) -> Iterator:
 
 
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
-               min_area: int = MIN_MASK_AREA, producer: dict | None = None) -> tuple[LandmarkTracks, dict]:
-    """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video."""
+               min_area: int = MIN_MASK_AREA, producer: dict | None = None,
+               keypoints: KeypointTracks | None = None) -> tuple[LandmarkTracks, dict]:
+    """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video.
+    ``keypoints``: the camera's keypoints/<cam>.npz (on the mask tracks' frames and tracks), which
+    keypoint-guided models read."""
     from mamma_kit.core.tracks import nearest_frames
     from mamma_kit.video import VideoReader
 
@@ -188,6 +256,10 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
     if tuple(reader.size) != tuple(masks.image_size):
         raise UserError(f"masks/{cam}.npz is {masks.image_size[0]}x{masks.image_size[1]} but {reader.path.name} is "
                         f"{reader.size[0]}x{reader.size[1]}", "run `mamma-kit track` again for this camera")
+    if keypoints is not None and (keypoints.valid.shape != masks.present.shape
+                                  or not np.array_equal(keypoints.track_ids, masks.track_ids)):
+        raise UserError(f"keypoints/{cam}.npz does not belong to masks/{cam}.npz (other frames or tracks)",
+                        "run `mamma-kit keypoints` again for this camera")
     todo = masks.present & (mask_areas(masks) >= min_area)
     vid_idx = nearest_frames(masks.frame_times, reader.timestamps)
     lost = int((todo.any(1) & (vid_idx < 0)).sum())
@@ -211,7 +283,8 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
         if not pending:
             return
         net = pred.predict_crops(np.stack([j.image for j in pending]),
-                                 np.stack([j.mask for j in pending]) if pred.cfg.use_mask else None)
+                                 np.stack([j.mask for j in pending]) if pred.cfg.use_mask else None,
+                                 *stack_extra([j.extra for j in pending] if pred.needs_keypoints else []))
         res = Predictor.to_image(net, np.stack([j.box for j in pending]))
         ti = np.array([j.t for j in pending])
         ki = np.array([j.k for j in pending])
@@ -223,7 +296,7 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
     done = 0
     with _progress() as bar:
         task = bar.add_task(f"landmarks {cam}", total=total)
-        for job in _threaded(lambda: _crop_jobs(pred, masks, frames(), todo), maxsize=2 * batch):
+        for job in _threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints), maxsize=2 * batch):
             pending.append(job)
             if len(pending) >= batch:
                 n = len(pending)

@@ -57,7 +57,7 @@ def _gt_layouts(dirs: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _predicted_layouts(model, shards, n: int, batch: int = 16, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
     """The network's positions (N, L, 2) in input-crop px and true visibility on ``n`` crops."""
-    from mamma_kit.landmarks.train import _to_torch, make_batch
+    from mamma_kit.landmarks.train import batch_to_torch, make_batch, run_model
 
     cfg = model.cfg
     H, W = cfg.input_hw
@@ -68,8 +68,7 @@ def _predicted_layouts(model, shards, n: int, batch: int = 16, seed: int = 7) ->
     with torch.no_grad():
         for a in range(0, len(idx), batch):
             b = make_batch(shards, idx[a:a + batch], cfg, None, (seed, a))
-            t = _to_torch(b, "cpu")
-            out = model(t["image"], t["mask"] if cfg.use_mask else None)
+            out = run_model(model, batch_to_torch(b, "cpu"))
             xs.append((out["xy"].float() * half).numpy())
             vs.append(np.asarray(b["visibility"], np.float32))
     return np.concatenate(xs), np.concatenate(vs)

@@ -6,6 +6,8 @@
 - person contact and floor contact: sigmoid focal loss (alpha 0.9, gamma 2), weight 1 each;
 - models with a dense head (config ``dense_head``): L1 of its soft-argmax positions, weight 10,
   and cross-entropy of its token distribution against a Gaussian around the truth, weight 1;
+- keypoint-guided models (head ``sampled``): L1 of the keypoint prior's positions, weight 10, so the
+  prior learns a good start on its own and the refinement learns what the image adds;
 - every term weighted per landmark (``landmark_weights``): 1 inside the crop, exp(-2 |r - 1|) outside
   with r = max(|n_x|, |n_y|) the landmark's normalised Chebyshev radius (the crop border is r = 1);
   hand and foot landmarks doubled when their part is at least partly inside the crop.
@@ -32,6 +34,7 @@ class LossWeights:
     floor_contact: float = 1.0
     dense: float = 10.0  # L1 (normalised units) of the dense head's soft-argmax, when the model has one
     dense_ce: float = 1.0  # cross-entropy of its token distribution against a Gaussian around the truth
+    prior: float = 10.0  # L1 (normalised units) of the keypoint prior's positions, when the model has one
     nll_clip: float = 25.0
     focal_alpha: float = 0.9
     focal_gamma: float = 2.0
@@ -107,6 +110,10 @@ def mammanet_loss(out: dict, batch: dict, weights: LossWeights = LossWeights(),
         dense = _wmean((out["xy_dense"] - batch["xy_n"]).abs().sum(-1), w)
         total = total + weights.dense * dense
         terms["dense"] = float(dense.detach())
+    if "xy_prior" in out and weights.prior > 0:
+        prior = _wmean((out["xy_prior"] - batch["xy_n"]).abs().sum(-1), w)
+        total = total + weights.prior * prior
+        terms["prior"] = float(prior.detach())
     if "dense_logits" in out and weights.dense_ce > 0:
         ce = _wmean(dense_cross_entropy(out["dense_logits"], out["dense_centres"], batch["xy_n"]), w)
         total = total + weights.dense_ce * ce

@@ -16,6 +16,11 @@ The module names follow the official checkpoint (shared/OFFICIAL-MAMMANET.md) so
   [-1, 1] over the crop), ``vis_prob``, ``contact_prob``, ``floor_contact_prob`` Linear(D, 1) logits.
 - ``queries = "single"``: one learned token decodes all L landmarks (CameraHMR-style baseline);
   the heads then output 3L / L / L / L values from that token.
+- keypoint-guided configs (``keypoints_in``, ``head = "sampled"``; not in the official checkpoint):
+  the keypoint model's points enter the stem as Gaussian maps (``keypoint_maps``), ``prior`` places
+  every landmark from the points (an MLP in the points' own centre and scale, so it does not have to
+  learn translation and scale), and ``sampled`` refines each landmark from the image features sampled
+  on a 3 x 3 grid around it, and predicts its sigma, visibility and contacts there.
 """
 
 from __future__ import annotations
@@ -39,9 +44,13 @@ class MammaNetOutput(TypedDict, total=False):
     vis_logit: torch.Tensor  # (B, L)
     contact_logit: torch.Tensor  # (B, L)
     floor_logit: torch.Tensor  # (B, L)
+    xy_prior: torch.Tensor  # (B, L, 2) the keypoint prior's positions (sampled head)
 
 
 # ---- backbone ------------------------------------------------------------------------------
+def stem_channels(cfg: MammaNetConfig) -> int:
+    """Input channels of the conv stem: RGB, then the mask, the others' mask, the keypoint maps."""
+    return 3 + int(cfg.mask_in_stem) + int(cfg.others_in_stem) + cfg.keypoints_in
 class PatchEmbed(nn.Module):
     def __init__(self, cfg: MammaNetConfig):
         super().__init__()
@@ -66,7 +75,7 @@ class ConvStem(nn.Module):
         widths = [max(16, cfg.dim >> (len(strides) - 1 - i)) for i in range(len(strides))]
         self.down = nn.ModuleList()
         self.refine = nn.ModuleList()
-        c = 4 if cfg.mask_in_stem else 3
+        c = stem_channels(cfg)
         for st, w in zip(strides, widths):
             k = 3 if st == 2 else st
             self.down.append(nn.Sequential(nn.Conv2d(c, w, k, stride=st, padding=1 if st == 2 else 0),
@@ -76,7 +85,7 @@ class ConvStem(nn.Module):
         self.fine_channels = widths[-2] if len(widths) > 1 else widths[-1]
 
     def forward(self, x_bchw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """x: (B, 3, H, W) image, or (B, 4, H, W) image and mask (``mask_in_stem``)."""
+        """x: (B, stem_channels(cfg), H, W): image, then mask / others / keypoint maps as configured."""
         x, fine = x_bchw, None
         for i, (d, r) in enumerate(zip(self.down, self.refine)):
             x = d(x)
@@ -304,6 +313,99 @@ class DenseHead(nn.Module):
         return torch.einsum("bnl,nc->blc", prob, self.centres_n2), logits
 
 
+# ---- keypoint guidance -----------------------------------------------------------------------------
+def keypoint_maps(kp_bp5: torch.Tensor, hw: tuple[int, int], sigma_frac: float) -> torch.Tensor:
+    """(B, P, H, W) Gaussian maps of the points (B, P, 5: x, y normalised, z, visibility, presence),
+    sigma ``sigma_frac`` x H px; a point's peak is 0.3 + 0.7 visibility, 0 where the point is absent."""
+    H, W = hw
+    s = sigma_frac * H
+    x = (kp_bp5[..., 0] + 1) * (W / 2) - 0.5  # (B, P) input px, pixel-centre convention
+    y = (kp_bp5[..., 1] + 1) * (H / 2) - 0.5
+    amp = (kp_bp5[..., 4] > 0).to(kp_bp5.dtype) * (0.3 + 0.7 * kp_bp5[..., 3].clamp(0, 1))
+    xs = torch.arange(W, dtype=kp_bp5.dtype, device=kp_bp5.device)
+    ys = torch.arange(H, dtype=kp_bp5.dtype, device=kp_bp5.device)
+    gx = torch.exp(-0.5 * ((xs - x[..., None]) / s) ** 2)  # (B, P, W)
+    gy = torch.exp(-0.5 * ((ys - y[..., None]) / s) ** 2) * amp[..., None]  # (B, P, H)
+    return gy[..., :, None] * gx[..., None, :]
+
+
+def keypoint_frame(kp_bp5: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Centre (B, 1, 2) and scale (B, 1, 1) of the present points (normalised crop units); the crop's
+    centre and 0.5 where no point is present."""
+    w = (kp_bp5[..., 4:5] > 0).to(kp_bp5.dtype)  # (B, P, 1)
+    n = w.sum(1, keepdim=True)
+    c = (kp_bp5[..., :2] * w).sum(1, keepdim=True) / n.clamp_min(1)
+    r2 = (((kp_bp5[..., :2] - c) ** 2).sum(-1, keepdim=True) * w).sum(1, keepdim=True) / n.clamp_min(1)
+    has = (n >= 3).to(kp_bp5.dtype)
+    scale = has * r2.sqrt().clamp_min(0.05) + (1 - has) * 0.5
+    return c * has, scale
+
+
+class KeypointPrior(nn.Module):
+    """Landmark positions from the points (and a pooled image code), in the points' centre and scale."""
+
+    def __init__(self, cfg: MammaNetConfig, hidden: int = 512):
+        super().__init__()
+        P, L = cfg.keypoints_in, cfg.n_landmarks
+        self.net = nn.Sequential(nn.Linear(5 * P + cfg.dim, hidden), nn.GELU(), nn.Linear(hidden, hidden), nn.GELU())
+        self.xy = nn.Linear(hidden, 2 * L)
+        self.code = nn.Linear(hidden, cfg.head_channels)
+
+    def forward(self, kp_bp5: torch.Tensor, image_code_bd: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """-> positions (B, L, 2) normalised, and a per-person code (B, C)."""
+        c, s = keypoint_frame(kp_bp5)
+        present = (kp_bp5[..., 4:5] > 0).to(kp_bp5.dtype)
+        local = torch.cat([(kp_bp5[..., :2] - c) / s * present, kp_bp5[..., 2:3] / s * present, kp_bp5[..., 3:5]], -1)
+        h = self.net(torch.cat([local.flatten(1), image_code_bd], 1))
+        B = kp_bp5.shape[0]
+        return c + s * self.xy(h).reshape(B, -1, 2), self.code(h)
+
+
+class SampledHead(nn.Module):
+    """Refines positions from features sampled around them; sigma, visibility and contacts too.
+
+    The feature map is the conv stem's finer stage fused with the upsampled tokens (as the dense
+    head's). Each of ``refine_steps`` rounds samples a 3 x 3 grid (one fine cell apart) around every
+    landmark and moves it; the last round's MLP also gives log sigma and the three logits."""
+
+    def __init__(self, cfg: MammaNetConfig, fine_channels: int):
+        super().__init__()
+        C, L = cfg.head_channels, cfg.n_landmarks
+        self.from_tokens = nn.Conv2d(cfg.dim, C, 1)
+        self.from_fine = nn.Conv2d(fine_channels, C, 1)
+        self.mix = nn.Sequential(nn.GELU(), nn.Conv2d(C, C, 3, padding=1), nn.GELU())
+        self.embed = nn.Embedding(L, C)
+        gh, gw = cfg.grid_hw
+        # the 3 x 3 sampling grid, one fine cell (half a token) apart, in normalised units
+        d = torch.tensor([-1.0, 0.0, 1.0])
+        yy, xx = torch.meshgrid(d / gh, d / gw, indexing="ij")
+        self.register_buffer("grid_k2", torch.stack([xx, yy], -1).reshape(-1, 2), persistent=False)
+        n_in = 9 * C + 2 * C + 2
+        self.rounds = nn.ModuleList(MLP(n_in, 2 * C, 6 if i == cfg.refine_steps - 1 else 2, 3)
+                                    for i in range(cfg.refine_steps))
+
+    def feature_map(self, memory_bdhw: torch.Tensor, fine_bchw: torch.Tensor) -> torch.Tensor:
+        up = F.interpolate(self.from_tokens(memory_bdhw), size=fine_bchw.shape[-2:], mode="bilinear",
+                           align_corners=False)
+        return self.mix(up + self.from_fine(fine_bchw))
+
+    def forward(self, fmap_bchw: torch.Tensor, xy_bl2: torch.Tensor, code_bc: torch.Tensor) -> MammaNetOutput:
+        B, L = xy_bl2.shape[:2]
+        K = self.grid_k2.shape[0]
+        emb = self.embed.weight[None].expand(B, -1, -1)
+        code = code_bc[:, None].expand(-1, L, -1)
+        xy = xy_bl2
+        for i, mlp in enumerate(self.rounds):
+            at = xy.detach()
+            pts = (at[:, :, None, :] + self.grid_k2).reshape(B, L * K, 1, 2)  # x, y in [-1, 1]
+            f = F.grid_sample(fmap_bchw, pts, mode="bilinear", padding_mode="zeros", align_corners=False)
+            f = f[..., 0].reshape(B, -1, L, K).permute(0, 2, 3, 1).reshape(B, L, -1)  # (B, L, K C)
+            o = mlp(torch.cat([f, emb, code, at], -1))
+            xy = xy + o[..., :2]
+        return MammaNetOutput(xy=xy, log_sigma=o[..., 2] + math.log(0.05), vis_logit=o[..., 3],
+                              contact_logit=o[..., 4], floor_logit=o[..., 5])
+
+
 # ---- the network ----------------------------------------------------------------------------------
 class MammaNet(nn.Module):
     """Dense landmark network; ``forward(image, mask)`` -> :class:`MammaNetOutput`.
@@ -317,10 +419,12 @@ class MammaNet(nn.Module):
         super().__init__()
         self.cfg = cfg.validate()
         self.backbone = ViT(cfg)
-        self.decoder = LandmarkDecoder(cfg)
+        self.decoder = LandmarkDecoder(cfg) if cfg.head == "detr" else None
         self.mask_downscaling = MaskEmbed(cfg) if cfg.use_mask else None
         fine = self.backbone.patch_embed.fine_channels if cfg.stem == "conv" else None
         self.dense = DenseHead(cfg, fine) if cfg.dense_head else None
+        self.prior = KeypointPrior(cfg) if cfg.head == "sampled" else None
+        self.sampled = SampledHead(cfg, fine) if cfg.head == "sampled" else None
         self.layout_vis = None
         if cfg.layout_visibility:
             from mamma_kit.landmarks.layout_vis import LayoutVisibility
@@ -342,37 +446,64 @@ class MammaNet(nn.Module):
                 nn.init.xavier_uniform_(mod.in_proj_weight)
                 nn.init.zeros_(mod.in_proj_bias)
         nn.init.trunc_normal_(self.backbone.pos_embed, std=0.02)
-        nn.init.normal_(self.decoder.query_embed.weight, std=1.0)
-        # start at the crop centre with sigma = 0.2 crop half-widths
-        last = self.decoder.landmarks.layers[-1]
-        nn.init.zeros_(last.weight)
-        with torch.no_grad():
-            last.bias.view(-1, 3)[:, 2] = math.log(0.2)
+        if self.decoder is not None:
+            nn.init.normal_(self.decoder.query_embed.weight, std=1.0)
+            # start at the crop centre with sigma = 0.2 crop half-widths
+            last = self.decoder.landmarks.layers[-1]
+            nn.init.zeros_(last.weight)
+            with torch.no_grad():
+                last.bias.view(-1, 3)[:, 2] = math.log(0.2)
+        if self.sampled is not None:  # refinements start at zero: the prior's positions
+            for mlp in self.sampled.rounds:
+                nn.init.zeros_(mlp.layers[-1].weight)
+                nn.init.zeros_(mlp.layers[-1].bias)
 
     @property
     def n_landmarks(self) -> int:
         return self.cfg.n_landmarks
 
-    def features(self, image: torch.Tensor, mask: torch.Tensor | None = None
-                 ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def features(self, image: torch.Tensor, mask: torch.Tensor | None = None, keypoints: torch.Tensor | None = None,
+                 others: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
         """-> image tokens with the mask embedding (B, D, gh, gw), and the stem's finer map or None."""
+        cfg = self.cfg
+        zeros = image.new_zeros(image.shape[0], 1, *image.shape[2:])
         if self.mask_downscaling is not None and mask is None:
-            mask = image.new_zeros(image.shape[0], 1, *image.shape[2:])
-        f, fine = self.backbone(torch.cat([image, mask], 1) if self.cfg.mask_in_stem else image)
+            mask = zeros
+        x = [image]
+        if cfg.mask_in_stem:
+            x.append(mask)
+        if cfg.others_in_stem:
+            x.append(zeros if others is None else others)
+        if cfg.keypoints_in:
+            x.append(keypoint_maps(self.keypoints_or_none(keypoints, image), cfg.input_hw, cfg.kp_map_sigma))
+        f, fine = self.backbone(torch.cat(x, 1) if len(x) > 1 else image)
         if self.mask_downscaling is not None:
             f = f + self.mask_downscaling(mask)
         return f, fine
 
-    def forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
-        out = self._forward(image, mask)
+    def keypoints_or_none(self, keypoints: torch.Tensor | None, image: torch.Tensor) -> torch.Tensor:
+        """The keypoints, or all-absent points (B, P, 5) zeros where a crop has none."""
+        if keypoints is None:
+            return image.new_zeros(image.shape[0], self.cfg.keypoints_in, 5)
+        return keypoints
+
+    def forward(self, image: torch.Tensor, mask: torch.Tensor | None = None, keypoints: torch.Tensor | None = None,
+                others: torch.Tensor | None = None) -> MammaNetOutput:
+        """``keypoints`` (B, P, 5) and ``others`` (B, 1, H, W): keypoint-guided configs only."""
+        out = self._forward(image, mask, keypoints, others)
         if self.layout_vis is not None:
             H, W = self.cfg.input_hw
             half = out["xy"].new_tensor([W / 2, H / 2])  # normalised -> input-crop px
             out["vis_logit"] = self.layout_vis(out["xy"].detach() * half)
         return out
 
-    def _forward(self, image: torch.Tensor, mask: torch.Tensor | None = None) -> MammaNetOutput:
-        f, fine = self.features(image, mask)
+    def _forward(self, image, mask=None, keypoints=None, others=None) -> MammaNetOutput:
+        f, fine = self.features(image, mask, keypoints, others)
+        if self.sampled is not None:
+            xy_prior, code = self.prior(self.keypoints_or_none(keypoints, image), f.mean((2, 3)))
+            out = self.sampled(self.sampled.feature_map(f, fine), xy_prior, code)
+            out["xy_prior"] = xy_prior
+            return out
         if self.dense is None:
             return self.decoder(f, self.backbone.pos_embed[:, 1:])
         xy_dense, logits = self.dense(f, fine)

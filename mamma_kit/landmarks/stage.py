@@ -59,6 +59,15 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
             raise UserError(f"no person masks for {', '.join(missing)} (masks/<cam>.npz)",
                             "run `mamma-kit track WORKSPACE` first")
         unit_inputs = {c: [ws.mask_file(c), cap.cameras[c].video, Path(loaded.source)] for c in cams}
+        if loaded.config.keypoints_in:
+            missing = [c for c in cams if not ws.keypoints_file(c).is_file()]
+            if missing:
+                raise UserError(f"the keypoint-guided MammaNet ({loaded.config.name}) reads keypoints, and "
+                                f"{', '.join(missing)} have none (keypoints/<cam>.npz)",
+                                "run `mamma-kit keypoints WORKSPACE` first (or pass --arch embedded for the "
+                                "image-only model)")
+            for c in cams:
+                unit_inputs[c].append(ws.keypoints_file(c))
         settings = {"source": "net", "arch": loaded.config.name, "weights": loaded.source}
     per_cam, ran = [], []
     pred = None
@@ -78,12 +87,13 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
             lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
             lt.producer = prod
         else:
-            from mamma_kit.core.tracks import MaskTracks
+            from mamma_kit.core.tracks import KeypointTracks, MaskTracks
             from mamma_kit.landmarks.inference import Predictor, run_camera
 
             pred = pred or Predictor(loaded, device)
+            kt = KeypointTracks.load(ws.keypoints_file(cam)) if loaded.config.keypoints_in else None
             lt, summ = run_camera(pred, cam, MaskTracks.load(ws.mask_file(cam)), cap.cameras[cam].video, batch,
-                                  producer=prod)
+                                  producer=prod, keypoints=kt)
         lt.save(out)
         manifest.record(inputs, {**settings, "camera": cam}, [out], summ, time.perf_counter() - tc)
         per_cam.append({"camera": cam, "skipped": False, **summ})

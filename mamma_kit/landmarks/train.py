@@ -154,9 +154,31 @@ def _param_groups(model: MammaNet, wd: float) -> list[dict]:
     return [{"params": decay, "weight_decay": wd}, {"params": no_decay, "weight_decay": 0.0}]
 
 
-def _to_torch(b: dict[str, np.ndarray], device: str) -> dict[str, torch.Tensor]:
-    return {"image": C.normalise_images(b["image"], device), "mask": C.mask_tensor(b["mask"], device),
-            **{k: torch.as_tensor(b[k], device=device) for k in ("xy_n", "visibility", "contact", "floor_contact")}}
+def batch_to_torch(b: dict[str, np.ndarray], device: str) -> dict[str, torch.Tensor]:
+    """A collated batch of ``prepare_sample`` outputs -> tensors (the network's inputs and labels)."""
+    t = {"image": C.normalise_images(b["image"], device), "mask": C.mask_tensor(b["mask"], device),
+         **{k: torch.as_tensor(b[k], device=device) for k in ("xy_n", "visibility", "contact", "floor_contact")}}
+    if "others" in b:
+        t["others"] = C.mask_tensor(b["others"], device)
+    if "keypoints" in b:
+        t["keypoints"] = torch.as_tensor(b["keypoints"], device=device)
+    return t
+
+
+def run_model(model: MammaNet, t: dict[str, torch.Tensor]):
+    """The model on a batch of ``batch_to_torch``: only the inputs its config reads."""
+    cfg = model.cfg
+    return model(t["image"], t["mask"] if cfg.use_mask else None, t.get("keypoints") if cfg.keypoints_in else None,
+                 t.get("others") if cfg.others_in_stem else None)
+
+
+def _ensure_keypoints(cfg: MammaNetConfig, dirs: list[Path]) -> None:
+    """A keypoint-guided model reads the keypoint model's points of every crop: run it once on the
+    shards that have none yet (keypoints_NNNN.npz beside them; later runs reuse them)."""
+    if cfg.keypoints_in:
+        from mamma_kit.landmarks.data import annotate_keypoints
+
+        annotate_keypoints(dirs)
 
 
 def make_batch(shards: CropShards, indices: np.ndarray, cfg: MammaNetConfig, aug: AugmentConfig | None,
@@ -177,8 +199,7 @@ def evaluate_crops(model: MammaNet, shards: CropShards, n: int, batch: int = 16,
     acc: dict[str, list] = {k: [] for k in ("xy_p", "xy_g", "box_h", "vis_g", "vis_p", "con_g", "con_p", "flo_g", "flo_p")}
     for a in range(0, len(idx), batch):
         b = make_batch(shards, idx[a:a + batch], cfg, None, (seed, a))
-        t = _to_torch(b, device)
-        out = model(t["image"], t["mask"] if cfg.use_mask else None)
+        out = run_model(model, batch_to_torch(b, device))
         acc["xy_p"].append(C.normalised_to_crop(out["xy"].float().cpu().numpy(), (W, H)))
         acc["xy_g"].append(C.normalised_to_crop(b["xy_n"], (W, H)))
         acc["box_h"].append(b["box_h"])
@@ -241,6 +262,7 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
         raise UserError("--device cuda but torch sees no CUDA device", "use --device cpu")
     if s.threads:
         torch.set_num_threads(s.threads)
+    _ensure_keypoints(tc.model, tc.train_dirs + tc.val_dirs)
     train_set = CropShards(tc.train_dirs)
     val_set = CropShards(tc.val_dirs) if tc.val_dirs else None
     cfg = tc.model
@@ -311,9 +333,9 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
         for st, b in _threaded(lambda: batches(step), maxsize=2):
             for g in opt.param_groups:
                 g["lr"] = lr_at(st, s)
-            t = _to_torch(b, device)
+            t = batch_to_torch(b, device)
             with torch.autocast("cuda", dtype=torch.bfloat16, enabled=amp):
-                out_ = model(t["image"], t["mask"] if cfg.use_mask else None)
+                out_ = run_model(model, t)
             out_f = {k: v.float() for k, v in out_.items()}
             loss, terms = mammanet_loss(out_f, t, tc.loss, part_l, doubled)
             opt.zero_grad(set_to_none=True)
@@ -339,6 +361,7 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
                 log.info(f"step {step}/{s.steps} loss {avg['loss']:.4f} (nll {avg['nll']:.4f} vis {avg['vis']:.4f} "
                          f"contact {avg['contact']:.4f} floor {avg['floor']:.4f}"
                          + (f" dense {avg['dense']:.4f}" if "dense" in avg else "")
+                         + (f" prior {avg['prior']:.4f}" if "prior" in avg else "")
                          + f") {rate:.1f} samples/s, eta {eta / 60:.1f} min")
                 running, t_log, seen_log = {}, time.perf_counter(), 0
             if s.eval_every and step % s.eval_every == 0 and step < s.steps:
@@ -480,4 +503,5 @@ def model_card_markdown(card: dict) -> str:
 
 
 __all__ = ["TrainConfig", "TrainSettings", "load_train_config", "train", "export", "evaluate_crops", "lr_at", "make_batch",
+           "batch_to_torch", "run_model",
            "model_card_markdown"]
