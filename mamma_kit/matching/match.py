@@ -2,7 +2,14 @@
 
 Inputs: landmarks/<cam>.npz (per view tracks), calibration.toml, and timing.toml to pair the
 unsynchronised cameras' frames by time (without it, frames are paired by index, with a
-warning). Output: core.identities.Identities.
+warning); keypoints/<cam>.npz where the keypoints stage ran. Output: core.identities.Identities.
+
+Two sources of evidence per camera pair where keypoints exist: the dense landmarks and the
+keypoint model's 33 points, each giving every track pair a distance. The more reliable source
+decides: the one whose same-person distances are lower on that camera pair (the median over
+tracks of each track's best distance: the source's own noise there), wherever it has evidence
+for a track pair; the other fills in where it has none. On real footage with a network trained
+on renders the landmarks can be far noisier than the keypoints; on renders they are close.
 
 Constants (distances in units of the person's height in the image, see pairs.py):
 
@@ -47,6 +54,15 @@ class MatchSettings:
     vis_threshold: float = 0.5
     max_frames: int = 150
     coexist_tolerance: int = 2
+    use_keypoints: bool = True
+
+
+def source_noise(D: np.ndarray, ev: np.ndarray) -> float:
+    """A source's same-person distance on a camera pair: median over tracks of their best distance."""
+    Dm = np.where(ev, np.nan_to_num(D, nan=np.inf), np.inf)
+    best = np.concatenate([Dm.min(1) if Dm.shape[1] else [], Dm.min(0) if Dm.shape[0] else []])
+    best = best[np.isfinite(best)]
+    return float(np.median(best)) if len(best) else float("inf")
 
 
 def affinity_of(D: np.ndarray, n_shared: np.ndarray, frames: np.ndarray, s: MatchSettings) -> np.ndarray:
@@ -60,8 +76,10 @@ def _nan_none(a: np.ndarray, digits: int = 4) -> list:
     return [[None if not np.isfinite(v) else round(float(v), digits) for v in row] for row in np.asarray(a, float)]
 
 
-def match_views(views: list[ViewTracks], settings: MatchSettings | None = None) -> Identities:
-    """Identities of the tracks of the given views (see module doc)."""
+def match_views(views: list[ViewTracks], settings: MatchSettings | None = None,
+                kp_views: list[ViewTracks | None] | None = None) -> Identities:
+    """Identities of the tracks of the given views (see module doc); ``kp_views``: per view the
+    keypoint tracks of the same track ids, or None."""
     s = settings or MatchSettings()
     names = [v.name for v in views]
     nodes: list[Node] = []
@@ -83,6 +101,10 @@ def match_views(views: list[ViewTracks], settings: MatchSettings | None = None) 
         for b in range(a + 1, len(views)):
             va, vb = views[a], views[b]
             r = pair_distances(va, vb, cap=s.cap, max_frames=s.max_frames, min_per_frame=s.min_per_frame)
+            source = "landmarks"
+            if kp_views is not None and kp_views[a] is not None and kp_views[b] is not None:
+                r, source = _more_reliable(r, pair_distances(kp_views[a], kp_views[b], cap=s.cap,
+                                                             max_frames=s.max_frames, min_per_frame=s.min_per_frame), s)
             Ap = affinity_of(r.distance, r.shared_landmarks, r.shared_frames, s)
             ev = (r.shared_landmarks >= s.min_landmarks) & (r.shared_frames >= 1)
             for i in range(va.n_tracks):
@@ -95,7 +117,8 @@ def match_views(views: list[ViewTracks], settings: MatchSettings | None = None) 
             pairs[f"{va.name}|{vb.name}"] = {
                 "rows": va.track_ids.tolist(), "cols": vb.track_ids.tolist(), "affinity": _nan_none(Ap),
                 "distance": _nan_none(r.distance), "distance_px": _nan_none(r.distance_px, 2),
-                "shared_landmarks": r.shared_landmarks.tolist(), "shared_frames": r.shared_frames.tolist()}
+                "shared_landmarks": r.shared_landmarks.tolist(), "shared_frames": r.shared_frames.tolist(),
+                "source": source}
             view_pairs.append((a, b))
 
     def describe(i: int) -> list:
@@ -123,6 +146,20 @@ def match_views(views: list[ViewTracks], settings: MatchSettings | None = None) 
         "max_affinity_between_groups": _max_between(A, evidence, gid),
     }
     return Identities(names, assignments, pairs, grouping.rejected, unassigned, asdict(s), diag, {}, frames)
+
+
+def _more_reliable(lm, kp, s: MatchSettings):
+    """Per track pair the distance of the less noisy source on this camera pair where it has
+    evidence, else the other's (see the module doc). -> (PairResult, "landmarks" | "keypoints")."""
+    from mamma_kit.matching.pairs import PairResult
+
+    ev_lm = (lm.shared_landmarks >= s.min_landmarks) & (lm.shared_frames >= 1)
+    ev_kp = (kp.shared_landmarks >= s.min_landmarks) & (kp.shared_frames >= 1)
+    kp_first = source_noise(kp.distance, ev_kp) < source_noise(lm.distance, ev_lm)
+    first, second, ev1 = (kp, lm, ev_kp) if kp_first else (lm, kp, ev_lm)
+    out = PairResult(*(np.where(ev1, getattr(first, f), getattr(second, f))
+                       for f in ("distance", "distance_px", "shared_landmarks", "shared_frames")))
+    return out, "keypoints" if kp_first else "landmarks"
 
 
 def _mean_within(A, evidence, g) -> float | None:
@@ -182,11 +219,29 @@ def match_workspace(ws: Workspace, cameras: list[str] | None = None, calibration
     if timing is None and ws.timing.is_file():
         timing = ws.timing
     times, how = camera_times(ws, cameras, lts, Path(timing) if timing else None)
-    views = [ViewTracks.from_landmarks(lts[c], _camera_for(rig[c], lts[c].image_size), times[c],
-                                       (settings or MatchSettings()).vis_threshold) for c in cameras]
-    ident = match_views(views, settings)
+    s = settings or MatchSettings()
+    views = [ViewTracks.from_landmarks(lts[c], _camera_for(rig[c], lts[c].image_size), times[c], s.vis_threshold)
+             for c in cameras]
+    kp_views = keypoint_views(ws, cameras, lts, rig, times, s) if s.use_keypoints else None
+    ident = match_views(views, settings, kp_views)
     ident.diagnostics["time_pairing"] = how
+    ident.diagnostics["keypoints"] = [c for c, v in zip(cameras, kp_views or []) if v is not None]
     return ident
+
+
+def keypoint_views(ws: Workspace, cameras: list[str], lts: dict[str, LandmarkTracks], rig, times,
+                   s: MatchSettings) -> list[ViewTracks | None] | None:
+    """The cameras' keypoint tracks where keypoints/<cam>.npz exists for the same tracks, else None."""
+    from mamma_kit.core.tracks import KeypointTracks
+
+    out = []
+    for c in cameras:
+        kt = KeypointTracks.load(ws.keypoints_file(c)) if ws.keypoints_file(c).is_file() else None
+        same = kt is not None and np.array_equal(kt.track_ids, lts[c].track_ids) and \
+            len(kt.frame_times) == len(lts[c].frame_times)
+        out.append(ViewTracks.from_keypoints(kt, _camera_for(rig[c], kt.image_size), times[c], s.vis_threshold)
+                   if same else None)
+    return out if any(v is not None for v in out) else None
 
 
 def _camera_for(cam, size_wh) -> "object":

@@ -46,16 +46,29 @@ class ViewTracks:
         return len(self.track_ids)
 
     @classmethod
+    def from_keypoints(cls, kt, camera: Camera, times_ref: np.ndarray, vis_threshold: float = 0.5,
+                       min_height_px: float = 8.0) -> "ViewTracks":
+        """From a core.tracks.KeypointTracks (the keypoint model's 33 points per track), like landmarks."""
+        return cls._build(kt.camera, kt.track_ids, kt.xy, kt.valid, kt.visibility, camera, times_ref, vis_threshold,
+                          min_height_px)
+
+    @classmethod
     def from_landmarks(cls, lt, camera: Camera, times_ref: np.ndarray, vis_threshold: float = 0.5,
                        min_height_px: float = 8.0) -> "ViewTracks":
         """From a core.tracks.LandmarkTracks; pixels are undistorted with the camera's lens."""
-        xy = np.asarray(lt.xy, np.float64)
-        valid = np.asarray(lt.valid, bool) & np.isfinite(xy).all(-1).any(-1)
+        return cls._build(lt.camera, lt.track_ids, lt.xy, lt.valid, lt.visibility, camera, times_ref, vis_threshold,
+                          min_height_px)
+
+    @classmethod
+    def _build(cls, name, track_ids, xy_tkl2, valid_tk, vis_tkl, camera: Camera, times_ref, vis_threshold,
+               min_height_px) -> "ViewTracks":
+        xy = np.asarray(xy_tkl2, np.float64)
+        valid = np.asarray(valid_tk, bool) & np.isfinite(xy).all(-1).any(-1)
         finite = np.isfinite(xy).all(-1)
         xy_und = np.full_like(xy, np.nan)
         if finite.any():
             xy_und[finite] = camera.undistort_pixels(xy[finite])
-        v = np.where(finite, np.asarray(lt.visibility, np.float64), np.nan)
+        v = np.where(finite, np.asarray(vis_tkl, np.float64), np.nan)
         # a detection always keeps its more visible half: the ranking of visibility carries the
         # self-occlusion even from a network whose probabilities sit below the threshold (a
         # landmark's projection is where it is, occluded or not, so the matcher loses little)
@@ -71,8 +84,7 @@ class ViewTracks:
         height = np.where(valid & np.isfinite(height), np.maximum(height, min_height_px), np.nan)
         times_ref = np.asarray(times_ref, np.float64)
         period = float(np.median(np.diff(times_ref))) if len(times_ref) > 1 else 1.0
-        return cls(lt.camera, camera, times_ref, period, np.asarray(lt.track_ids, np.int64), xy_und, vis, valid,
-                   height)
+        return cls(name, camera, times_ref, period, np.asarray(track_ids, np.int64), xy_und, vis, valid, height)
 
 
 @dataclass

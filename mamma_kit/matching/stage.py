@@ -31,7 +31,8 @@ def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path |
         raise UserError(f"timing file not found: {timing}", "run `mamma-kit sync WORKSPACE` or fix --timing")
     tpath = Path(timing) if timing is not None else (ws.timing if ws.timing.is_file() else None)
     settings = MatchSettings(lam=lam, max_distance=max_distance, min_affinity=min_affinity)
-    inputs = [ws.landmarks_file(c) for c in cams] + [calib] + ([tpath] if tpath else [])
+    inputs = [ws.landmarks_file(c) for c in cams] + [calib] + ([tpath] if tpath else []) + \
+        [ws.keypoints_file(c) for c in cams if ws.keypoints_file(c).is_file()]
     manifest = StageManifest(ws.cache_dir, "match", ws.root)
     key = {"cameras": cams, "settings": settings.__dict__, "calibration": ws.relative(calib),
            "timing": ws.relative(tpath) if tpath else None, "plots": plots}
