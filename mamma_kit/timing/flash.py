@@ -47,6 +47,9 @@ SATURATED = 250
 # a partial fraction must be this many of its noise's standard deviations, and F_EDGE, from 0 and 1 (video
 # encoders leave a few per cent of a frame's brightening in rows the light did not reach)
 F_SIGMAS, F_EDGE = 4.0, 0.1
+# a step timed from fewer partly lit rows than this takes its camera's exposure and readout from the
+# camera's better-seen steps
+POOL_MIN_OBSERVATIONS = 8
 # drift is fitted when matched flashes span at least this long
 DRIFT_MIN_SPAN_S = 20.0
 DEFAULTS = {"exposure_s": 0.0, "readout_s": None, "gamma": 2.2, "min_snr": MIN_SNR}
@@ -268,11 +271,20 @@ def camera_events(sig: FlashSignal, cfg: Mapping) -> tuple[list[FlashEvent], dic
     readout = cfg.get("readout_s")
     readout = None if readout in (None, "") else float(readout)
     d_t = np.diff(sig.b_t)
+    spans = [(i0, i1, s, steps[j - 1][1] + 2 if j else 0,
+              steps[j + 1][0] - 1 if j + 1 < len(steps) else len(sig.times) - 1) for j, (i0, i1, s) in enumerate(steps)]
+    timed = [time_step(sig, i0, i1, s, lo, hi, exposure, readout) for i0, i1, s, lo, hi in spans]
+    # one camera keeps its exposure and readout through the take: steps that few rows caught are
+    # timed again with the camera's values from the steps that many rows caught
+    rich = [e for e in timed if e is not None and e.observations >= POOL_MIN_OBSERVATIONS]
+    if rich and (exposure is None or readout is None):
+        w = np.array([e.observations for e in rich], float)
+        e_cam = exposure or float(np.average([e.exposure_s for e in rich], weights=w))
+        r_cam = readout if readout is not None else float(np.average([e.readout_s for e in rich], weights=w))
+        timed = [time_step(sig, *span[:3], *span[3:], e_cam, r_cam)
+                 if ev is not None and ev.observations < POOL_MIN_OBSERVATIONS else ev for ev, span in zip(timed, spans)]
     events = []
-    for j, (i0, i1, s) in enumerate(steps):
-        lo = steps[j - 1][1] + 2 if j else 0
-        hi = steps[j + 1][0] - 1 if j + 1 < len(steps) else len(sig.times) - 1
-        ev = time_step(sig, i0, i1, s, lo, hi, exposure, readout)
+    for ev, (i0, i1, *_) in zip(timed, spans):
         if ev is not None:
             ev.snr = float(abs(d_t[i0:i1 + 1].sum()) / noise)
             events.append(ev)
