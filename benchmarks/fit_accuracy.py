@@ -26,6 +26,16 @@ the fit (SWEEP_CASES), each recipe rendered once (100 frames) and fitted on its 
 frames and on all 100. Prints MPJPE over all joints, body (0-21) and hands (25-54) per
 row, then the checks: exact landmarks <= 3 mm (body and hands), MPJPE never more than 10 %
 higher at a lower noise (same outliers; body and hands apart), and the 1.2 % / 5 % targets.
+
+    OMP_NUM_THREADS=1 nice -n 15 python benchmarks/fit_accuracy.py --keypoints [--kp-root DIR]
+        [--kp-cases duo2718,studio3141] [--kp-frames 30] [--kp-cameras 4]
+
+--keypoints (issue 22): the fit with BlazePose keypoints (`mamma-kit keypoints` on the rendered
+videos, people tracked by their true masks) on the captures benchmarks/kp_regressor.py holds out
+from the keypoint regressor's learning. Rows per capture: landmarks at 1.2 % noise / 5 %
+outliers without and with keypoints (the default weight 0.1 and 1), heavy landmark noise (7 % /
+20 % outliers, like a weak network) likewise, and keypoints alone (landmarks off); MPJPE (all, body
+0-21) after the last stage, and the keypoints' share of the stage-2 energy.
 """
 
 from __future__ import annotations
@@ -200,6 +210,52 @@ def sweep(a) -> dict:
     return {"rows": rows, "checks": checks}
 
 
+KP_ROWS = (  # (label, landmark noise, outliers, keypoint weight, landmark weight)
+    ("landmarks 1.2 %", "1.2%", 0.05, 0.0, 1.0), ("landmarks 1.2 % + keypoints (default 0.1)", "1.2%", 0.05, 0.1, 1.0),
+    ("landmarks 1.2 % + keypoints (weight 1)", "1.2%", 0.05, 1.0, 1.0), ("keypoints alone", "1.2%", 0.05, 1.0, 0.0),
+    ("landmarks 7 %, 20 % outl.", "7%", 0.2, 0.0, 1.0), ("landmarks 7 %, 20 % outl. + kp (default 0.1)", "7%", 0.2, 0.1, 1.0),
+    ("landmarks 7 %, 20 % outl. + kp (weight 1)", "7%", 0.2, 1.0, 1.0))
+
+
+def keypoint_rows(a) -> list[dict]:
+    """The --keypoints rows (see module doc)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from kp_regressor import HELDOUT, prepare
+
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.evaluation.fit import install_gt_calibration_and_timing
+    from mamma_kit.fitting import FitConfig
+    from mamma_kit.fitting.cameras import pick_cameras
+    from mamma_kit.core.workspace import Workspace
+
+    rows = []
+    print(f"{'capture':12s} {'cams':>4s} {'frames':>6s} {'input':40s} {'MPJPE':>7s} {'body':>6s} {'kp share S2':>11s} "
+          f"{'wall s':>7s}")
+    for case in a.kp_cases.split(","):
+        ws = Workspace(prepare(a.kp_root, case, *HELDOUT[case]))
+        install_gt_calibration_and_timing(ws)
+        rig, _ = read_calibration(ws.calibration)
+        cams = pick_cameras(rig, min(a.kp_cameras, len(rig)))
+        made = None
+        for label, noise, outl, kw, lw in KP_ROWS:
+            if made != (noise, outl):
+                mk("landmarks", ws.root, "--source", "gt", "--noise", noise, "--outliers", outl, "--seed", 0, "-q")
+                made = (noise, outl)
+            r = fit_and_evaluate(ws, cams, cfg=FitConfig(keypoint_weight=kw, landmark_weight=lw), frames=a.kp_frames,
+                                 penetration_frames=0)
+            fin = r["stages"][max(r["stages"])]
+            terms = r["stage_seconds"].get("stage2", {}).get("energy_terms", {})
+            share = terms.get("keypoints", {}).get("share_end", 0.0)
+            row = {"case": case, "input": label, "cameras": len(cams), "frames": r["frames"], "noise": noise,
+                   "outliers": outl, "keypoint_weight": kw, "landmark_weight": lw, "mpjpe_mm": fin["mpjpe_mm"],
+                   "body_mm": fin["mpjpe_body_mm"], "kp_share_s2": share, "wall_s": r["wall_s"],
+                   "energy_terms": {k: v.get("energy_terms") for k, v in r["stage_seconds"].items()}}
+            rows.append(row)
+            print(f"{case:12s} {len(cams):4d} {r['frames']:6d} {label:40s} {row['mpjpe_mm']:7.1f} {row['body_mm']:6.1f} "
+                  f"{share:11.2f} {r['wall_s']:7.0f}", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/mk_fit_bench"))
@@ -212,6 +268,12 @@ def main() -> None:
     ap.add_argument("--noises", default=None, help="noise levels of --sweep (default 0,0.3%%,0.6%%,1.2%%,2.4%%)")
     ap.add_argument("--outliers", default=None, help="outlier fractions of --sweep (default 0,0.05)")
     ap.add_argument("--clips", default=None, help="clip lengths (frames) of --sweep (default 30,100)")
+    ap.add_argument("--keypoints", action="store_true", help="the keypoint rows (see above) instead")
+    ap.add_argument("--kp-root", type=Path, default=Path("bench_data/kpreg"),
+                    help="benchmarks/kp_regressor.py's --root (captures with keypoints)")
+    ap.add_argument("--kp-cases", default="duo2718,studio3141")
+    ap.add_argument("--kp-frames", type=int, default=30)
+    ap.add_argument("--kp-cameras", type=int, default=4)
     a = ap.parse_args()
     import torch
 
@@ -221,6 +283,12 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     print(f"# fit accuracy; torch {torch.__version__}, {a.threads} threads, load average "
           f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
+    if a.keypoints:
+        rows = keypoint_rows(a)
+        print(f"# load average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+        if a.json:
+            a.json.write_text(json.dumps(rows, indent=1, default=float))
+        return
     if a.sweep:
         report = sweep(a)
         print(f"# load average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())}")

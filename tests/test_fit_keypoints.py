@@ -201,7 +201,7 @@ def _fitdata(rig, v, kp=None, kp_vis=None, sigma=1.0):
 def test_keypoints_recover_a_pose_that_noisy_landmarks_do_not(body, reg):
     """Landmarks with heavy, part-correlated noise (8 % of the body's height, sigma saying 8 %)
     leave the joints far off; BlazePose-like keypoints (the regressor's points, 2 % noise)
-    beside them, at the default weight, bring the fit close; keypoints alone (landmarks off)
+    beside them, at keypoint_weight 1 (as much as the landmarks), bring the fit close; keypoints alone (landmarks off)
     recover the body too."""
     from mamma_kit.fitting.stages import FitConfig, Fitter
 
@@ -227,11 +227,13 @@ def test_keypoints_recover_a_pose_that_noisy_landmarks_do_not(body, reg):
         return float(np.linalg.norm(r.joints[:, :, :22] - J[:, :, :22], axis=-1).mean() * 1000)
 
     without = mpjpe(FitConfig(stages=2, keypoint_weight=0.0))
-    with_kp = mpjpe(FitConfig(stages=2))
+    with_kp = mpjpe(FitConfig(stages=2, keypoint_weight=1.0))
     alone = mpjpe(FitConfig(stages=2, landmark_weight=0.0))
+    default = mpjpe(FitConfig(stages=2))
     print(f"MPJPE mm: noisy landmarks {without:.1f}, + keypoints {with_kp:.1f}, keypoints alone {alone:.1f}")
     assert with_kp < 0.6 * without, (with_kp, without)
     assert alone < 60.0 and with_kp < 60.0, (alone, with_kp)
+    assert default < without, (default, without)  # the default weight (0.1) helps too
 
 
 def test_fit_without_keypoints_is_unchanged_and_says_so(body, tmp_path):

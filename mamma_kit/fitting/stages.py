@@ -97,8 +97,10 @@ class FitConfig:
     # BlazePose keypoints beside the landmarks (used when the data has them; 0 = off). 1 = the
     # 33 points together weigh as much as the L landmarks at equal sigma (each x L / 33): 512
     # landmarks of one network err together (a limb off as a whole) and would otherwise
-    # outvote the detector (tests/test_fit_keypoints.py: part-correlated 8 % landmark noise)
-    keypoint_weight: float = 1.0
+    # outvote the detector. 0.1: on studio seed 3141 (4 cameras, 30 frames) 1.2 % landmarks
+    # 7.3 -> 7.1 mm, 7 % / 20 % outliers 65.3 -> 37.6 mm; at 1.0 the detector's own error
+    # costs good landmarks (7.3 -> 10.8 mm) (benchmarks/fit_accuracy.py --keypoints)
+    keypoint_weight: float = 0.1
     keypoint_min_sigma_px: float = 1.0  # a keypoint's sigma is never below this
     landmark_weight: float = 1.0  # 0: keypoints alone (benchmarks)
 
