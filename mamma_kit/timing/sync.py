@@ -468,8 +468,8 @@ def _agreement(by_method, media, chosen, check, clap_res, warnings, reference, e
                 elif abs(diff_ms) > lim:
                     raise UserError(
                         f"{k} and {chosen} clocks disagree on {n} by {diff_ms:+.2f} ms (tolerance {lim:.1f} ms)",
-                        "check that all timecode boxes were jammed from one source, the claps were heard and the "
-                        "flash seen by every camera, then pick one method with --method (or raise "
+                        "check that all timecode boxes were jammed from one source and the claps were heard by "
+                        f"every camera, then pick one method with --method {chosen}|{k} (or raise "
                         "check.agreement_tolerance_ms in the preset)")
     return out
 
