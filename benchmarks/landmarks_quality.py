@@ -1,8 +1,9 @@
-"""MammaNet quality on held-out synthetic captures: the embedded model vs the single-query baseline.
+"""MammaNet quality on held-out synthetic captures: the keypoint-guided model (embedded-kp, the
+default) vs the image-only embedded model and the single-query baseline, in the same run.
 
     nice -n 10 python benchmarks/landmarks_quality.py [--root /tmp/mk_lm_bench] [--threads 2]
-        [--weights mamma_kit/landmarks/weights/embedded.pt] [--baseline .../embedded-single.pt]
-        [--crops data/crops/val]
+        [--weights mamma_kit/landmarks/weights/embedded-kp.pt] [--image-only .../embedded.pt]
+        [--baseline .../embedded-single.pt] [--crops data/crops/val-kp]
 
 Held out: captures rendered by `mamma-kit synth` from recipes and seeds never used for the
 training crops (those came from `synth --crops` scenes; these are whole videos: H.264, the
@@ -12,7 +13,8 @@ recipes' lenses, distances and motions), cached under --root:
   studio  studio-16cam-solo, seed 102, the first 8 of 16 cameras at 480x270: one person, varied motion
 
 Each model runs through the real `mamma-kit landmarks` on ground-truth person masks (`track
---backend gt`, so the figures are the network's, not the tracker's) and `mamma-kit eval`
+--backend gt`, so the figures are the network's, not the tracker's; `mamma-kit keypoints` runs the
+shipped BlazePose on them for the keypoint-guided model) and `mamma-kit eval`
 compares with the renderer's landmarks. Printed per capture and model: mean 2D error in % of
 the person's box height (all landmarks and visible ones) and px, visibility accuracy, person-
 and floor-contact ROC AUC, and the identity accuracy of `mamma-kit match` on those landmarks. With --crops, the same metrics on held-out training-style crops
@@ -66,6 +68,8 @@ def prepare(root: Path, name: str) -> Path:
             cap["cameras"] = {n: cap["cameras"][n] for n in names[:keep]}
             write_toml(ws / "capture.toml", cap)
     mk("track", ws, "--backend", "gt", "--no-pictures", "-q")
+    if not (ws / "keypoints").is_dir():
+        mk("keypoints", ws, "--no-pictures", "-q")
     return ws
 
 
@@ -113,7 +117,8 @@ def fmt(m: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("/tmp/mk_lm_bench"))
-    ap.add_argument("--weights", type=Path, default=REPO / "mamma_kit/landmarks/weights/embedded.pt")
+    ap.add_argument("--weights", type=Path, default=REPO / "mamma_kit/landmarks/weights/embedded-kp.pt")
+    ap.add_argument("--image-only", type=Path, default=REPO / "mamma_kit/landmarks/weights/embedded.pt")
     ap.add_argument("--baseline", type=Path, default=REPO / "mamma_kit/landmarks/weights/embedded-single.pt")
     ap.add_argument("--captures", default="duo,studio")
     ap.add_argument("--crops", type=Path, default=None, help="held-out crop shards (e.g. data/crops/val)")
@@ -121,7 +126,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args()
-    models = {"embedded": a.weights, "single-query": a.baseline}
+    models = {"embedded-kp": a.weights, "embedded": a.image_only, "single-query": a.baseline}
     for k, p in list(models.items()):
         if not p.is_file():
             print(f"{k}: {p} not found, skipped")

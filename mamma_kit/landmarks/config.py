@@ -15,13 +15,22 @@ Every MammaNet in mamma-kit is built from a :class:`MammaNetConfig` by
     ``mask_in_stem``, ``detach_decoder_memory``): these trade the paper's pretrained ViT-B, which a
     CPU cannot train, for inductive biases that learn from a few thousand synthetic crops in hours.
     The shipped weights add the layout visibility head (``layout_visibility``).
+``embedded-kp``
+    The keypoint-guided CPU default: 160 x 120 input, the conv stem reads the image, the target's
+    mask, the other people's mask and Gaussian maps of BlazePose's 33 points of the target
+    (``keypoints_in``, ``others_in_stem``); 3 encoder layers; no decoder: a keypoint prior (an MLP
+    over the points in their own centre and scale) places the 512 landmarks and two rounds of
+    features sampled around each landmark refine it and give its sigma, visibility and contacts
+    (``head = "sampled"``). A network trained on a CPU on renders cannot learn to see people from
+    pixels alone; the map from a real-world detector's points (plus mask and image) to dense
+    surface landmarks it can learn, and that works on real people.
 ``embedded-256``
     A larger CPU model: d 192 at 256 x 192, patch 16, 6 encoder and 3 decoder layers.
 ``embedded-single`` / ``official-single``
     The single-query baseline (one learned token decodes all landmarks, as in CameraHMR) at the
     size of ``embedded`` / ``official``, for the paper's ablation.
-``tiny``
-    For tests: d 32 at 64 x 48.
+``tiny`` / ``tiny-kp``
+    For tests: d 32 at 64 x 48 (``tiny-kp``: keypoint-guided).
 
 A config round-trips through a plain dict (stored with the weights and in training TOMLs).
 """

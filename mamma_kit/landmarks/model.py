@@ -342,21 +342,23 @@ def keypoint_frame(kp_bp5: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 class KeypointPrior(nn.Module):
-    """Landmark positions from the points (and a pooled image code), in the points' centre and scale."""
+    """Landmark positions from the points alone, in the points' own centre and scale: it reads no
+    pixels, so it can be trained first on the crops' (points, landmarks) pairs in seconds
+    (train.pretrain_prior) before the image network learns what the pixels add."""
 
     def __init__(self, cfg: MammaNetConfig, hidden: int = 512):
         super().__init__()
         P, L = cfg.keypoints_in, cfg.n_landmarks
-        self.net = nn.Sequential(nn.Linear(5 * P + cfg.dim, hidden), nn.GELU(), nn.Linear(hidden, hidden), nn.GELU())
+        self.net = nn.Sequential(nn.Linear(5 * P, hidden), nn.GELU(), nn.Linear(hidden, hidden), nn.GELU())
         self.xy = nn.Linear(hidden, 2 * L)
         self.code = nn.Linear(hidden, cfg.head_channels)
 
-    def forward(self, kp_bp5: torch.Tensor, image_code_bd: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """-> positions (B, L, 2) normalised, and a per-person code (B, C)."""
+    def forward(self, kp_bp5: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """-> positions (B, L, 2) normalised, and a per-person code (B, C) for the refinement."""
         c, s = keypoint_frame(kp_bp5)
         present = (kp_bp5[..., 4:5] > 0).to(kp_bp5.dtype)
         local = torch.cat([(kp_bp5[..., :2] - c) / s * present, kp_bp5[..., 2:3] / s * present, kp_bp5[..., 3:5]], -1)
-        h = self.net(torch.cat([local.flatten(1), image_code_bd], 1))
+        h = self.net(local.flatten(1))
         B = kp_bp5.shape[0]
         return c + s * self.xy(h).reshape(B, -1, 2), self.code(h)
 
@@ -500,7 +502,7 @@ class MammaNet(nn.Module):
     def _forward(self, image, mask=None, keypoints=None, others=None) -> MammaNetOutput:
         f, fine = self.features(image, mask, keypoints, others)
         if self.sampled is not None:
-            xy_prior, code = self.prior(self.keypoints_or_none(keypoints, image), f.mean((2, 3)))
+            xy_prior, code = self.prior(self.keypoints_or_none(keypoints, image))
             out = self.sampled(self.sampled.feature_map(f, fine), xy_prior, code)
             out["xy_prior"] = xy_prior
             return out

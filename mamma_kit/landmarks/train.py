@@ -80,6 +80,8 @@ class TrainSettings:
     eval_samples: int = 512
     half_weights: bool = False
     init_from: str = ""  # a training checkpoint or weight file whose matching tensors start a new run
+    prior_steps: int = 0  # keypoint-guided models: steps of the keypoint prior alone before the network trains
+    prior_batch: int = 256
 
 
 @dataclass
@@ -238,6 +240,69 @@ def warm_start(model: MammaNet, src: Path) -> dict:
     return info
 
 
+def prior_pairs(shards: CropShards, cfg: MammaNetConfig, seed: int = 0) -> dict[str, torch.Tensor]:
+    """Every crop's (keypoints (N, P, 5), landmarks xy_n (N, L, 2), per-landmark weights (N, L)) in
+    the network's crop (no augmentation): the keypoint prior's training set."""
+    from mamma_kit.landmarks.losses import landmark_weights
+
+    kps, xys = [], []
+    for a in range(0, len(shards), 256):
+        b = make_batch(shards, np.arange(a, min(len(shards), a + 256)), cfg, None, (seed, a))
+        kps.append(b["keypoints"])
+        xys.append(b["xy_n"])
+    kp, xy = torch.as_tensor(np.concatenate(kps)), torch.as_tensor(np.concatenate(xys))
+    return {"keypoints": kp, "xy_n": xy, "weight": landmark_weights(xy)}
+
+
+def pretrain_prior(model: MammaNet, pairs: dict[str, torch.Tensor], steps: int, batch: int = 256, lr: float = 2e-3,
+                   seed: int = 0, aug: AugmentConfig | None = None) -> dict:
+    """Train the keypoint prior alone (an MLP on points: thousands of steps a minute on a CPU) on
+    (points, landmarks) pairs under random rotations about the points' centre and the augmentation's
+    point drops and jitter; the network's training then starts from a prior that already places the
+    landmarks. Returns the L1 (normalised units) before and after."""
+    from mamma_kit.landmarks.model import keypoint_frame
+
+    aug = aug or AugmentConfig()
+    g = torch.Generator().manual_seed(seed)
+    opt = torch.optim.AdamW(model.prior.parameters(), lr=lr, weight_decay=1e-4)
+    kp_all, xy_all, w_all = pairs["keypoints"], pairs["xy_n"], pairs["weight"]
+    N = len(kp_all)
+
+    def l1(kp, xy, w):
+        return ((model.prior(kp)[0] - xy).abs().sum(-1) * w).sum() / w.sum().clamp_min(1e-6)
+
+    with torch.no_grad():
+        before = float(l1(kp_all[:2048], xy_all[:2048], w_all[:2048]))
+    t0 = time.perf_counter()
+    for st in range(steps):
+        for gr in opt.param_groups:
+            gr["lr"] = lr * 0.5 * (1 + math.cos(math.pi * st / max(1, steps)))
+        idx = torch.randint(0, N, (batch,), generator=g)
+        kp, xy, w = kp_all[idx].clone(), xy_all[idx].clone(), w_all[idx]
+        c, _ = keypoint_frame(kp)
+        ang = (torch.rand(batch, generator=g) - 0.5) * 2 * math.radians(aug.max_rotate_deg) * \
+            (torch.rand(batch, generator=g) < aug.p_rotate)
+        R = torch.stack([torch.cos(ang), -torch.sin(ang), torch.sin(ang), torch.cos(ang)], -1).reshape(-1, 1, 2, 2)
+        present = kp[..., 4:5] > 0
+        kp[..., :2] = torch.where(present, c + ((kp[..., :2] - c)[..., None, :] @ R.transpose(-1, -2))[..., 0, :],
+                                  kp[..., :2])
+        xy = c + ((xy - c)[..., None, :] @ R.transpose(-1, -2))[..., 0, :]
+        drop = (torch.rand(kp.shape[:2], generator=g) < aug.p_kp_drop_point)[..., None] | \
+            (torch.rand(batch, 1, 1, generator=g) < aug.p_kp_missing)
+        kp = torch.where(drop, torch.zeros_like(kp), kp)
+        kp[..., :2] = kp[..., :2] + aug.kp_jitter * torch.randn(kp[..., :2].shape, generator=g) * (kp[..., 4:5] > 0)
+        loss = l1(kp, xy, w)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        after = float(l1(kp_all[:2048], xy_all[:2048], w_all[:2048]))
+    info = {"steps": steps, "batch": batch, "pairs": N, "l1_before": round(before, 4), "l1_after": round(after, 4),
+            "seconds": round(time.perf_counter() - t0, 1)}
+    log.info(f"keypoint prior: {steps} steps on {N} crops in {info['seconds']} s, L1 {before:.3f} -> {after:.3f}")
+    return info
+
+
 def _save_checkpoint(path: Path, model, opt, step: int, tc: TrainConfig, state: dict) -> None:
     obj = {"format": CHECKPOINT_FORMAT, "step": step, "model_config": tc.model.to_dict(),
            "model": model.state_dict(), "optimizer": opt.state_dict(), "state": json.dumps(state)}
@@ -300,6 +365,9 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
         log.info(f"no checkpoint in {out_dir}: starting a new run")
     if step == 0 and s.init_from:
         state["init_from"] = warm_start(model, Path(s.init_from))
+    if step == 0 and s.prior_steps and model.prior is not None:
+        state["prior_pretraining"] = pretrain_prior(model, prior_pairs(train_set, cfg, s.seed), s.prior_steps,
+                                                    s.prior_batch, seed=s.seed, aug=tc.augment)
     part_l = torch.as_tensor(train_set.landmark_parts, device=device) if train_set.landmark_parts is not None else None
     doubled = _doubled_ids(train_set)
     log_path = out_dir / "log.jsonl"
