@@ -155,3 +155,56 @@ def test_large_frames_are_searched_small_and_refined_at_full_resolution():
     assert ok.sum() == spec.n_corners and n_markers == 17
     err = xy[ok] - cam.project(spec.corners_b3[ok] @ R.T + t)
     assert np.sqrt(np.mean(np.sum(err ** 2, 1))) < 0.12
+
+
+@pytest.mark.parametrize("back", ["plain", "mirror", "see-through"])
+def test_board_seen_from_behind_shows_the_mirror_image_of_its_front(back):
+    """From behind, a board printed on both sides (mirror) or on thin paper (see-through)
+    shows its pattern mirrored, at the same 3D corners as the front; the mirrored search
+    finds every corner where the lens model projects it. A plain back shows no pattern."""
+    from mamma_kit.calibration.detect import BoardFinder
+
+    spec = load_board_spec("charuco-a3")
+    cam = Camera("c", (480, 360), [[420, 0, 237.2], [0, 421, 182.4], [0, 0, 1]], [-0.2, 0.05, 0.001, -0.001, 0])
+    ren = BoardRenderer(cam, spec, supersample=2, seed=3, back=back)
+    # the printed face (-z_b) turned away from the camera
+    R = _facing_rotation(np.array([0.2, -0.1, 1.0]), up=np.array([0, -1.0, 0]), roll=0.3)
+    t = np.array([0.0, 0.0, 0.75]) - R @ spec.center_b3
+    grey = cv2.cvtColor(ren.render([(R, t)], np.random.default_rng(0), noise_sigma=1.0), cv2.COLOR_RGB2GRAY)
+    xy, n_markers, from_behind = BoardFinder(spec).detect_any_side(grey)
+    if back == "plain":
+        assert n_markers == 0 and not np.isfinite(xy).any()
+        return
+    assert from_behind and np.isfinite(xy[:, 0]).all()
+    err = xy - cam.project(spec.corners_b3 @ R.T + t)
+    assert np.sqrt(np.mean(np.sum(err ** 2, 1))) < 0.15, err
+    # the same pose seen from the front reads the right way round
+    grey = cv2.cvtColor(ren.render([(R @ np.diag([1.0, -1.0, -1.0]), t)], np.random.default_rng(0), 1.0),
+                        cv2.COLOR_RGB2GRAY)
+    _, _, from_behind = BoardFinder(spec).detect_any_side(grey)
+    assert not from_behind
+
+
+def test_session_plan_shows_a_camera_behind_the_board_only_its_back():
+    """A camera named in ``behind`` never sees the front of the hand-held board; it shares
+    holds with the others from behind and gets close-ups of the back."""
+    from mamma_kit.synth.board import corner_visibility
+
+    rig = make_ring_rig(4, radius=2.0, size=(480, 360), f=400.0)
+    spec = load_board_spec("charuco-a3")
+    traj = plan_session(rig, spec, seed=2, duration_s=40.0, n_closeups=3, floor_pose=False, behind=["cam3"])
+    ts = 0.5 * (traj.hold_t0 + traj.hold_t1)
+    R, t = traj.pose(ts)
+    front = {c.name: np.array([corner_visibility(c, R[k], t[k], spec, 89.0) for k in range(len(ts))]) for c in rig}
+    back = {c.name: np.array([corner_visibility(c, R[k], t[k], spec, 75.0, "back") for k in range(len(ts))])
+            for c in rig}
+    assert front["cam3"].max() == 0.0
+    kinds = np.array(traj.kinds)
+    assert (back["cam3"][kinds == "closeup:cam3"] > 0.5).all() and (kinds == "closeup:cam3").sum() == 3
+    shared = (kinds == "shared") & (back["cam3"] > 0.8)
+    assert shared.sum() >= 2
+    # in those holds another camera sees the front: the views the extrinsics need
+    assert all(max(front[n][k] for n in ("cam0", "cam1", "cam2")) > 0.8 for k in np.nonzero(shared)[0])
+    with pytest.raises(ValueError, match="no camera cam9"):
+        plan_session(rig, spec, duration_s=40.0, behind=["cam9"])
+

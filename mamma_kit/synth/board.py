@@ -124,14 +124,17 @@ class BoardTrajectory:
 
 
 def corner_visibility(cam: Camera, R_wb: np.ndarray, t_wb: np.ndarray, spec: BoardSpec,
-                      max_angle_deg: float = 75.0) -> float:
-    """Fraction of chessboard corners a camera sees on the board's printed face."""
+                      max_angle_deg: float = 75.0, side: str = "front") -> float:
+    """Fraction of chessboard corners a camera sees on the board's printed face (``side``
+    "front"), on its back ("back": the side facing +z_b) or on whichever faces it ("any")."""
     R_cb = cam.R @ R_wb
     t_cb = cam.R @ t_wb + cam.t
     o_b = -R_cb.T @ t_cb  # camera centre in board coordinates
     c_b = spec.center_b3
     v = o_b - c_b
-    if v[2] >= 0 or -v[2] / np.linalg.norm(v) < np.cos(np.radians(max_angle_deg)):
+    # the front faces -z_b: a camera sees it from v[2] < 0, the back from v[2] > 0
+    facing = {"front": -v[2], "back": v[2], "any": abs(v[2])}[side]
+    if facing <= 0 or facing / np.linalg.norm(v) < np.cos(np.radians(max_angle_deg)):
         return 0.0
     X = spec.corners_b3 @ R_cb.T + t_cb
     if np.any(X[:, 2] < 0.05):
@@ -186,10 +189,25 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
                  floor_radius: tuple[float, float] = (0.6, 1.2),
                  speed_mps: float = 0.8, tremor_m: float = 0.0003, volume_radius: float | None = None,
                  height_range: tuple[float, float] = (0.6, 1.8), closeup_fill: tuple[float, float] = (0.35, 0.8),
-                 max_tilt_deg: float = 40.0, max_view_angle_deg: float = 55.0) -> BoardTrajectory:
-    """Plan a board session for a rig (world Z up). See the module docstring."""
+                 max_tilt_deg: float = 40.0, max_view_angle_deg: float = 55.0,
+                 behind: Sequence[str] = ()) -> BoardTrajectory:
+    """Plan a board session for a rig (world Z up). See the module docstring.
+
+    ``behind`` names cameras that see the hand-held board only from behind, as a camera
+    does that stands behind the person holding it: its shared holds face the pair's other
+    camera with the back towards it, its close-ups show it the back, and no other hold
+    shows it the front (the floor boards lie face up and are seen as they lie). Whether
+    the back shows the pattern is the renderer's ``back``."""
     rng = np.random.default_rng(seed)
     cams = list(rig)
+    behind = set(behind)
+    unknown = behind - set(rig.names)
+    if unknown:
+        raise ValueError(f"behind: no camera {', '.join(sorted(unknown))} in the rig")
+
+    def hides_front(R, t) -> bool:
+        """No behind camera sees the board's front."""
+        return all(corner_visibility(c, R, t, spec, max_angle_deg=89.0) == 0.0 for c in cams if c.name in behind)
     centre = volume_center(rig)
     dists = np.linalg.norm(rig.centers() - centre, axis=1)
     r_vol = volume_radius if volume_radius is not None else 0.3 * float(np.median(dists))
@@ -208,12 +226,14 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
             rr, aa = r_vol * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
             p[:2] += rr * np.array([np.cos(aa), np.sin(aa)])
             p[2] = rng.uniform(lo, hi)
-            dirs = [(c.center - p) / np.linalg.norm(c.center - p) for c in pair]
+            # the printed face turns towards the pair's front cameras and away from those behind
+            dirs = [(-1.0 if c.name in behind else 1.0) * (c.center - p) / np.linalg.norm(c.center - p) for c in pair]
             n = np.mean(dirs, 0)
             R = _tilt(_facing_rotation(n, roll=rng.uniform(-0.4, 0.4)), rng, 0.5 * max_tilt_deg)
             t = p - R @ spec.center_b3
-            ok = [corner_visibility(c, R, t, spec, max_angle_deg=max_view_angle_deg) > 0.8 for c in pair]
-            if all(ok):
+            ok = [corner_visibility(c, R, t, spec, max_angle_deg=max_view_angle_deg,
+                                    side="back" if c.name in behind else "front") > 0.8 for c in pair]
+            if all(ok) and (not behind or hides_front(R, t)):
                 return R, p
         return None
 
@@ -237,9 +257,14 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
             ray_c = np.r_[undistort_exact(cam, uv[None])[0], 1.0]
             p = cam.R.T @ (ray_c * depth - cam.t)
             n_out = (cam.center - p) / np.linalg.norm(cam.center - p)
-            R = _tilt(_facing_rotation(n_out, roll=rng.uniform(-0.6, 0.6)), rng, max_tilt_deg * 1.1)
+            back = cam.name in behind
+            R = _tilt(_facing_rotation(-n_out if back else n_out, roll=rng.uniform(-0.6, 0.6)), rng,
+                      max_tilt_deg * 1.1)
             t = p - R @ spec.center_b3
-            if p[2] < 0.15 or corner_visibility(cam, R, t, spec, max_angle_deg=65) < 0.55:
+            if p[2] < 0.15 or corner_visibility(cam, R, t, spec, max_angle_deg=65,
+                                                side="back" if back else "front") < 0.55:
+                continue
+            if behind and not hides_front(R, t):
                 continue
             out.append((R, p))
         return out
@@ -331,7 +356,8 @@ class _Texture:
     """Board texture pyramid: 2-channel float32 (grey 0..255, coverage 1) over the paper,
     so that a lookup with a zero border gives premultiplied grey and anti-aliased paper edges."""
 
-    def __init__(self, spec: BoardSpec, px_per_square: int = 256, margin_squares: float = 0.3):
+    def __init__(self, spec: BoardSpec, px_per_square: int = 256, margin_squares: float = 0.3,
+                 see_through: bool = False):
         self.spec = spec
         p = int(px_per_square)
         # every level must halve exactly (an odd size would shift texels by up to half a
@@ -339,6 +365,8 @@ class _Texture:
         p = 1 << max(3, int(np.round(np.log2(p))))
         margin = max(32, int(round(margin_squares * p / 32)) * 32)
         grey = spec.image(p, margin_px=margin).astype(np.float32)
+        if see_through:
+            grey = see_through_print(grey, p)
         img = np.dstack([grey, np.ones_like(grey)])
         self.levels = []  # (image, px per metre, margin px)
         ppm = p / spec.square_m
@@ -361,6 +389,24 @@ class _Texture:
             if 1.0 / lv[1] <= texel_m:
                 best = lv
         return best
+
+
+SEE_THROUGH_PAPER = 215.0  # the back of a thin sheet lit from the front: darker than its face
+SEE_THROUGH_CONTRAST = 0.5  # the ink shows through at half its contrast ...
+SEE_THROUGH_BLUR_SQUARES = 0.02  # ... scattered over about 2 % of a square
+
+
+def see_through_print(grey: np.ndarray, px_per_square: int) -> np.ndarray:
+    """The print of a thin sheet as seen through the paper from behind, in the front's own
+    texel layout (the mirroring comes from looking at it from the other side): the ink
+    blurred by the paper (a symmetric blur keeps the chessboard corners where they are) and
+    at reduced contrast on a darker paper."""
+    sigma = SEE_THROUGH_BLUR_SQUARES * px_per_square
+    ink = 255.0 - cv2.GaussianBlur(grey, (0, 0), sigma)
+    return (SEE_THROUGH_PAPER - SEE_THROUGH_CONTRAST * ink * SEE_THROUGH_PAPER / 255.0).astype(np.float32)
+
+
+BACKS = ("plain", "mirror", "see-through")
 
 
 def _background(cam: Camera, rng) -> np.ndarray:
@@ -387,14 +433,28 @@ def _background(cam: Camera, rng) -> np.ndarray:
 
 
 class BoardRenderer:
-    """Renders one camera's view of the board at given board poses (inverse mapping)."""
+    """Renders one camera's view of the board at given board poses (inverse mapping).
+
+    ``back`` is what the board's back side shows: "plain" (grey card), "mirror" (printed on
+    both sides, the back page the mirror image of the front glued exactly behind it, so
+    every corner is seen at the same 3D point from either side) or "see-through" (a thin
+    sheet printed on one side: the print shows through, blurred and at lower contrast).
+    Seen from behind, the same board point carries the same pattern, so the image is the
+    mirror image of the front by the geometry alone."""
 
     def __init__(self, cam: Camera, spec: BoardSpec, *, supersample: int = 3, seed: int = 0,
-                 texture: _Texture | None = None, background: np.ndarray | None = None):
+                 texture: _Texture | None = None, background: np.ndarray | None = None, back: str = "plain",
+                 back_texture: _Texture | None = None):
+        if back not in BACKS:
+            raise ValueError(f"back must be one of {', '.join(BACKS)}, not {back!r}")
         self.cam = cam
         self.spec = spec
         self.s = int(supersample)
         self.tex = texture or _Texture(spec)
+        self.back = back
+        self.tex_back = {"plain": None, "mirror": self.tex,
+                         "see-through": back_texture or (_Texture(spec, see_through=True) if back == "see-through"
+                                                         else None)}[back]
         self.rays = ray_map(cam, pad=1)
         rng = np.random.default_rng(seed)
         self.background = _background(cam, rng)
@@ -454,12 +514,12 @@ class BoardRenderer:
         A = R_cb.T.tolist()  # python floats keep the arithmetic in float32
         dn = float(R_cb[:, 2] @ t_cb)
         o_b = -b  # camera centre in board coordinates
-        if o_b[2] < 0:  # printed face towards the camera
+        tex = self.tex if o_b[2] < 0 else self.tex_back  # printed face towards the camera, else the back
+        if tex is not None:
             f = 0.5 * (self.cam.K[0, 0] + self.cam.K[1, 1])
-            # texture level from the sample footprint at the board plane's nearest point
             # texture level from the sub-pixel sample footprint at the board plane's nearest point
-            img, ppm, margin = self.tex.level_for(max(abs(dn), 1e-3) / (f * s))
-        else:  # the back of the board: plain grey card
+            img, ppm, margin = tex.level_for(max(abs(dn), 1e-3) / (f * s))
+        else:  # a plain back: grey card
             img, ppm, margin = self.tex.levels[-1]
             img = np.dstack([np.full(img.shape[:2], 150.0, np.float32), np.ones(img.shape[:2], np.float32)])
         den = A[2][0] * rx + A[2][1] * ry + A[2][2]
@@ -543,7 +603,8 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
                          tremor_m: float = 0.0003, crf: int = 18, rotation_deg: Mapping[str, int] | None = None,
                          video_ext: str = ".mp4", trajectory: BoardTrajectory | None = None,
                          cameras: Sequence[str] | None = None, progress: bool = True,
-                         backgrounds: Mapping[str, np.ndarray] | None = None, **plan_kw) -> dict:
+                         backgrounds: Mapping[str, np.ndarray] | None = None, back: str = "plain",
+                         behind: Sequence[str] = (), **plan_kw) -> dict:
     """Render a board session as one H.264 video per camera: ``out_dir/<cam><video_ext>``.
 
     Parameters (what a recipe's [board] table maps onto):
@@ -570,11 +631,17 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
       cameras      render only these cameras (the trajectory still sees the whole rig)
       backgrounds  per camera the empty scene behind the board (float32 RGB 0..255, e.g.
                    CameraRenderer.static_image()); default: a random cluttered backdrop
+      back         what the board's back shows: "plain" grey card, "mirror" (printed on both
+                   sides, the back page the front's mirror image) or "see-through" (thin paper:
+                   the front's print through it); see :class:`BoardRenderer`
+      behind       cameras that see the hand-held board only from behind (planned so by
+                   :func:`plan_session`; ignored with a ready ``trajectory``)
       plan_kw      passed to :func:`plan_session` (hold_s, volume_radius, height_range, ...)
 
     Returns a dict: ``videos`` {cam: path}, ``frame_times`` {cam: camera-clock times},
     ``ref_times`` {cam: reference times}, ``visible`` {cam: fraction of corners in view per
-    frame}, ``pose_times`` (N,), ``R_wb`` (N, 3, 3), ``t_wb`` (N, 3) board-to-world at
+    frame, on the front or on a printed back}, ``from_behind`` {cam: (F,) bool, the camera
+    faces the board's back}, ``pose_times`` (N,), ``R_wb`` (N, 3, 3), ``t_wb`` (N, 3) board-to-world at
     100 Hz, ``segments`` [{kind, t0, t1}] (holds in reference time), ``floor`` (the floor
     board pose or None), ``trajectory`` (the BoardTrajectory) and ``spec``.
     """
@@ -582,11 +649,14 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if behind:
+        plan_kw["behind"] = behind
     traj = trajectory or plan_session(rig, spec, seed=seed, duration_s=duration_s, closeups=closeups,
                                       n_closeups=n_closeups, floor_pose=floor_pose, tremor_m=tremor_m, **plan_kw)
     clocks = dict(clocks or {})
     tex = _Texture(spec)
-    result: dict = {"videos": {}, "frame_times": {}, "ref_times": {}, "visible": {}}
+    tex_back = _Texture(spec, see_through=True) if back == "see-through" else None
+    result: dict = {"videos": {}, "frame_times": {}, "ref_times": {}, "visible": {}, "from_behind": {}}
     names = list(cameras) if cameras is not None else rig.names
     for name in names:
         ci = rig.names.index(name)  # seeds depend on the camera, not on which others are rendered
@@ -599,10 +669,14 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
             t_cam = np.arange(int(round(duration_s * fps))) / fps
         t_ref = clk.to_ref(t_cam)
         ren = BoardRenderer(cam, spec, supersample=supersample, seed=seed * 101 + ci, texture=tex,
-                            background=(backgrounds or {}).get(name))
+                            background=(backgrounds or {}).get(name), back=back, back_texture=tex_back)
         cv2.setRNGSeed(seed * 101 + ci)  # the sensor noise (cv2.randn) is reproducible too
         R_wb, t_wb = traj.pose(t_ref)
-        vis = np.array([corner_visibility(cam, R_wb[i], t_wb[i], spec, 89.0) for i in range(len(t_ref))])
+        side = "front" if back == "plain" else "any"
+        vis = np.array([corner_visibility(cam, R_wb[i], t_wb[i], spec, 89.0, side) for i in range(len(t_ref))])
+        # the camera centre on the board's +z side: it faces the back
+        o_b = np.einsum("nji,nj->ni", R_wb, cam.center[None] - t_wb)
+        result["from_behind"][name] = o_b[:, 2] > 0
         path = out_dir / f"{name}{video_ext}"
         nominal = 1.0 / np.median(np.diff(t_cam)) if len(t_cam) > 1 else fps
         rot = int((rotation_deg or {}).get(name, 0))

@@ -161,7 +161,8 @@ def _render_board(recipe: Recipe, cams: list[SynthCamera], out: Path, scene=None
     kw = dict(seed=recipe.seed + 11, duration_s=float(recipe.board.get("duration_s", 20.0)), fps=recipe.fps,
               clocks={c.camera.name: c.clock for c in cams}, closeups=bool(recipe.board.get("closeups", True)),
               n_closeups=int(recipe.board.get("n_closeups", 8)), noise_sigma=float(recipe.render.get("noise", 2.0)),
-              supersample=int(recipe.board.get("supersample", 2)), progress=False)
+              supersample=int(recipe.board.get("supersample", 2)), progress=False,
+              back=str(recipe.board.get("back", "plain")), behind=list(recipe.board.get("behind", [])))
     rig = rig_of(cams)
     # one camera per process (the session's plan is the same in each: it depends on the seed and rig)
     units = [(out / "board", rig, spec, kw, c.camera.name, (backgrounds or {}).get(c.camera.name)) for c in cams]

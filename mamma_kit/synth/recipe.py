@@ -64,6 +64,9 @@ Ranges written as ``[lo, hi]`` are sampled per camera/person from the recipe's s
     duration_s = 10.0
     background = "scene"        # the board shown in the capture's own scene (the cameras stay put
                                 # between board and capture), or "clutter": a random cluttered backdrop
+    back = "plain"              # the board's back: plain (grey card), mirror (printed on both sides,
+                                # `mamma-kit board --double-sided`) or see-through (thin paper)
+    behind = ["cam3"]           # cameras that see the hand-held board only from behind
 
     [flash]                     # optional: a light switched on (or a torch flashed) in the scene
     t = [1.0]                   # scene time(s) the light goes on
@@ -307,6 +310,16 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
         bf.string("spec", "charuco-5x7")
         bf.num("duration_s", 10.0, lo=1, hi=600)
         bf.string("background", "scene", choices=("scene", "clutter"))
+        bf.string("back", "plain", choices=("plain", "mirror", "see-through"))
+        behind = board.get("behind", [])
+        names = [c.name for c in cameras]
+        if not isinstance(behind, list) or any(not isinstance(b, str) for b in behind):
+            raise bf.err("behind", "expected a list of camera names")
+        unknown = [b for b in behind if b not in names]
+        if unknown:
+            raise bf.err("behind", f"no camera {', '.join(unknown)} in the rig (cameras: {', '.join(names)})")
+        if len(set(behind)) == len(names):
+            raise bf.err("behind", "at least one camera must see the board's front")
     render = _Fields(data.get("render", {}), "render.")
     render.num("scale", 1.0, lo=0.02, hi=4)
     render.num("noise", 2.0, lo=0, hi=50)
