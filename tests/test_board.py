@@ -208,3 +208,37 @@ def test_session_plan_shows_a_camera_behind_the_board_only_its_back():
     with pytest.raises(ValueError, match="no camera cam9"):
         plan_session(rig, spec, duration_s=40.0, behind=["cam9"])
 
+
+def test_double_sided_board_prints_its_mirror_image_as_a_second_page(tmp_path, cli):
+    """`board --double-sided`: page 2 is page 1 mirrored left to right, so glued back to back
+    (turned over like a book page) every corner of the back lies behind the same corner of
+    the front; a PDF holds both pages, a PNG gets <name>-back.png beside it."""
+    from mamma_kit.calibration.detect import BoardFinder
+
+    spec = load_board_spec("charuco-a4")
+    r = cli("board", "charuco-a4", "--out", tmp_path / "b.png", "--dpi", "100", "--double-sided", "--json")
+    assert r.code == 0, r
+    import json
+
+    info = json.loads(r.out)
+    assert info["pages"] == 2 and info["files"] == [str(tmp_path / "b.png"), str(tmp_path / "b-back.png")]
+    front = cv2.imread(str(tmp_path / "b.png"), cv2.IMREAD_GRAYSCALE)
+    back = cv2.imread(str(tmp_path / "b-back.png"), cv2.IMREAD_GRAYSCALE)
+    assert front.shape == back.shape
+    finder = BoardFinder(spec)
+    xy_f, _, behind_f = finder.detect_any_side(front)
+    xy_b, _, behind_b = finder.detect_any_side(back)
+    assert not behind_f and behind_b  # the back reads only mirrored
+    assert np.isfinite(xy_f).all() and np.isfinite(xy_b).all()
+    # turned over left to right, the back's point at x mm from the page's left edge lies
+    # behind the front's at (page width - x): within 0.1 mm for every corner
+    px_per_mm = 100 / 25.4
+    xy_b[:, 0] = info["page_mm"][0] * px_per_mm - 1 - xy_b[:, 0]
+    assert np.abs(xy_b - xy_f).max() / px_per_mm < 0.1
+    r = cli("board", "charuco-a4", "--out", tmp_path / "b.pdf", "--double-sided")
+    assert r.code == 0, r
+    data = (tmp_path / "b.pdf").read_bytes()
+    assert len(re.findall(rb"/Type\s*/Page\b", data)) == 2
+    assert "turn it over left to right" in r.err
+    r = cli("board", "charuco-a4", "--out", tmp_path / "one.pdf")
+    assert len(re.findall(rb"/Type\s*/Page\b", (tmp_path / "one.pdf").read_bytes())) == 1

@@ -279,40 +279,41 @@ def choose_paper(spec: BoardSpec, paper: str | None, margin_mm: float = 10.0, te
                     "use smaller squares (square_m) or fewer squares")
 
 
-def print_board(spec: BoardSpec, out: str | Path, paper: str | None = None, dpi: int = 300) -> dict:
-    """Write the board at true physical scale on a page (PDF vector or PNG at ``dpi``),
-    with the spec and a 100 mm check bar in the margin. Returns what was written."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+def _draw_page(spec: BoardSpec, paper: str, W: float, H: float, *, back: bool, double_sided: bool,
+               text_mm: float):
+    """One page (a matplotlib Figure, mm with y down): the pattern, or its mirror image for
+    the back of a double-sided board, with the spec, notes, a 100 mm bar and, on double-sided
+    boards, corner marks to align the two pages. -> (figure, pattern's top-left in mm)."""
     from matplotlib.collections import PatchCollection
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
 
-    from mamma_kit.core.io import atomic_path
-
-    out = Path(out)
-    ext = out.suffix.lower()
-    if ext not in (".pdf", ".png", ".svg"):
-        raise UserError(f"cannot write a board as '{ext or out.name}'", "use --out board.pdf, board.png or board.svg")
-    paper, land = choose_paper(spec, paper)
-    pw, ph = PAPERS[paper]
-    W, H = (ph, pw) if land else (pw, ph)  # page in mm
     w_mm, h_mm = (v * 1000 for v in spec.size_m)
     fig = Figure(figsize=(W / 25.4, H / 25.4))
     ax = fig.add_axes((0, 0, 1, 1))
     ax.set_xlim(0, W)
     ax.set_ylim(H, 0)  # y down, mm from the page's top-left
     ax.set_axis_off()
+    # centred horizontally, so the mirrored pattern lands on the same part of the page; room
+    # for the text block below the pattern
     x0 = (W - w_mm) / 2
-    # centred, leaving room for the text block below the pattern
-    y0 = 10.0 + max(0.0, (H - 20.0 - 22.0 - h_mm) / 2)
+    y0 = 10.0 + max(0.0, (H - 20.0 - text_mm - h_mm) / 2)
     fg, bg = ("white", "black") if spec.inverted else ("black", "white")
     if spec.inverted:
         ax.add_patch(Rectangle((x0, y0), w_mm, h_mm, facecolor="black", edgecolor="none"))
-    rects = [Rectangle((x0 + x * 1000, y0 + y * 1000), w * 1000, h * 1000) for x, y, w, h in _board_rects(spec)]
+    rects = _board_rects(spec)
+    if back:  # mirror image about the pattern's vertical centre line (= the page's)
+        rects = [(spec.size_m[0] - x - w, y, w, h) for x, y, w, h in rects]
+    rects = [Rectangle((x0 + x * 1000, y0 + y * 1000), w * 1000, h * 1000) for x, y, w, h in rects]
     # tiny overlap-free rectangles; antialiasing off so neighbours do not leave hairlines
     ax.add_collection(PatchCollection(rects, facecolor=fg, edgecolor="none", antialiased=False))
+    if double_sided:
+        # crosses 4 mm left and right of the pattern's corners (a set the mirror maps onto
+        # itself), beside it so that no paper gets taller
+        for cx in (x0 - 4, x0 + w_mm + 4):
+            for cy in (y0, y0 + h_mm):
+                ax.add_patch(Rectangle((cx - 3, cy - 0.15), 6, 0.3, facecolor="black", edgecolor="none"))
+                ax.add_patch(Rectangle((cx - 0.15, cy - 3), 0.3, 6, facecolor="black", edgecolor="none"))
     ty = y0 + h_mm + 4
     lines = [
         f"mamma-kit ChArUco board '{spec.name}': {spec.squares_x} x {spec.squares_y} squares, "
@@ -322,6 +323,16 @@ def print_board(spec: BoardSpec, out: str | Path, paper: str | None = None, dpi:
         f"{spec.square_m * 1000:g} mm; if not, write the measured sizes into the spec.",
     ]
     fs = 7 if W < 300 else 9
+    if double_sided:
+        import textwrap
+
+        # DejaVu Sans averages about 0.55 em a character; 1 pt = 0.3528 mm
+        width = max(40, int((W - x0 - 8) / (0.55 * fs * 0.3528)))
+        note = ("turn page 2 over left to right (like a book page), hold it behind page 1 against a window, lay "
+                "the crosses and squares on each other and glue the sheets to each other (nothing thick between: "
+                "any offset is an error for cameras behind).")
+        side = "Page 2 of 2: the BACK (mirror image); " if back else "Page 1 of 2: the FRONT; "
+        lines += textwrap.wrap(side + note, width)
     for k, text in enumerate(lines):
         ax.text(x0, ty + k * 4.0, text, fontsize=fs, va="top", ha="left", family="DejaVu Sans")
     bar_y = ty + len(lines) * 4.0 + 3
@@ -330,8 +341,58 @@ def print_board(spec: BoardSpec, out: str | Path, paper: str | None = None, dpi:
         ax.add_patch(Rectangle((x0 + 10 * k - 0.15, bar_y - (2 if k % 5 == 0 else 1)), 0.3,
                                2 if k % 5 == 0 else 1, facecolor="black", edgecolor="none"))
     ax.text(x0 + 102, bar_y + 1, "100 mm", fontsize=fs, va="center")
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=dpi, format=ext[1:], facecolor="white")
+    return fig, (x0, y0)
+
+
+def back_page_path(out: str | Path) -> Path:
+    """Where the back page of a double-sided board goes when the format holds one page."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}-back{out.suffix}")
+
+
+def print_board(spec: BoardSpec, out: str | Path, paper: str | None = None, dpi: int = 300,
+                double_sided: bool = False) -> dict:
+    """Write the board at true physical scale on a page (PDF vector or PNG at ``dpi``),
+    with the spec and a 100 mm check bar in the margin. Returns what was written.
+
+    ``double_sided`` adds the back: the pattern's mirror image on a second page (of the PDF;
+    ``<stem>-back.png|svg`` beside a PNG or SVG) to glue back to back with the first, so
+    that a camera behind the board sees every corner at the same point as the front's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    from mamma_kit.core.io import atomic_path
+
+    out = Path(out)
+    ext = out.suffix.lower()
+    if ext not in (".pdf", ".png", ".svg"):
+        raise UserError(f"cannot write a board as '{ext or out.name}'", "use --out board.pdf, board.png or board.svg")
+    text_mm = 25.0 if double_sided else 22.0
+    paper, land = choose_paper(spec, paper, text_mm=text_mm)
+    pw, ph = PAPERS[paper]
+    W, H = (ph, pw) if land else (pw, ph)  # page in mm
+    w_mm, h_mm = (v * 1000 for v in spec.size_m)
+    sides = [False, True] if double_sided else [False]
+    figs = [_draw_page(spec, paper, W, H, back=b, double_sided=double_sided, text_mm=text_mm) for b in sides]
+    x0, y0 = figs[0][1]
+    pages = [str(out)]
+    if ext == ".pdf" and double_sided:
+        from matplotlib.backends.backend_pdf import PdfPages
+
+        with atomic_path(out) as tmp:
+            with PdfPages(tmp) as pdf:
+                for fig, _ in figs:
+                    pdf.savefig(fig, facecolor="white")
+    else:
+        with atomic_path(out) as tmp:
+            figs[0][0].savefig(tmp, dpi=dpi, format=ext[1:], facecolor="white")
+        if double_sided:
+            back = back_page_path(out)
+            with atomic_path(back) as tmp:
+                figs[1][0].savefig(tmp, dpi=dpi, format=ext[1:], facecolor="white")
+            pages.append(str(back))
     return {"output": str(out), "paper": paper, "landscape": land, "page_mm": [W, H],
             "board_mm": [w_mm, h_mm], "board_origin_mm": [x0, y0], "dpi": dpi if ext == ".png" else None,
+            "double_sided": double_sided, "pages": len(sides), "files": pages,
             "spec": spec.to_dict()}

@@ -19,6 +19,9 @@ def board_cmd(
     paper: Optional[str] = typer.Option(None, "--paper", help="A0, A1, A2, A3, A4, letter or tabloid "
                                                                "(default: the spec's, else the smallest that fits)."),
     dpi: int = typer.Option(300, "--dpi", help="Resolution of a .png."),
+    double_sided: bool = typer.Option(False, "--double-sided", help="Also print the back: a second page with the "
+                                      "mirror image, to glue back to back so that cameras behind the board see "
+                                      "it too (page 2 of a .pdf; <name>-back.png/.svg beside a .png/.svg)."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
@@ -27,9 +30,13 @@ def board_cmd(
 
     setup(quiet, json_out)
     s = load_board_spec(spec)
-    info = print_board(s, out, paper, dpi)
+    info = print_board(s, out, paper, dpi, double_sided=double_sided)
     if json_out:
         emit_json(info)
     else:
         log.info(f"{out}: {s.describe()} on {info['paper']}{' landscape' if info['landscape'] else ''}; print at "
                  f"100 % and check that the bar measures 100 mm")
+        if double_sided:
+            where = "page 2" if len(info["files"]) == 1 else info["files"][1]
+            log.info(f"the back ({where}) is the mirror image: turn it over left to right, align it on the front "
+                     f"against a window (corner crosses on each other) and glue the two sheets to each other")
