@@ -111,12 +111,13 @@ def test_capture_to_smplx_with_motion_sync_and_no_people_is_one_line(tmp_path, c
     rng = np.random.default_rng(0)
     base = rng.uniform(40, 200, (30, 40, 3)).repeat(4, 0).repeat(4, 1)
     vids = [write_video(tmp_path / f"{c.name}.mp4", [np.clip(base + rng.normal(0, 2, base.shape), 0, 255)
-                                                     .astype(np.uint8) for _ in range(8)], np.arange(8) / 10)
+                                                     .astype(np.uint8) for _ in range(4)], np.arange(4) / 10)
             for c in rig]
     write_calibration(tmp_path / "calib.toml", rig)
     init_workspace(tmp_path / "ws", vids, calibration=tmp_path / "calib.toml")
-    with (tmp_path / "ws" / "capture.toml").open("a") as f:
-        f.write('\n[settings.sync]\nmethod = "motion"\n')
+    text = (tmp_path / "ws" / "capture.toml").read_text().replace('[settings.track]', '[settings.track]\npictures = false')
+    (tmp_path / "ws" / "capture.toml").write_text(text + '\n[settings.keypoints]\npictures = false\n'
+                                                  '\n[settings.sync]\nmethod = "motion"\n')
     res = cli("capture-to-smplx", tmp_path / "ws")
     assert res.code == 2, res
     line = res.err.strip().splitlines()[-1]
