@@ -6,8 +6,9 @@
 - person contact and floor contact: sigmoid focal loss (alpha 0.9, gamma 2), weight 1 each;
 - models with a dense head (config ``dense_head``): L1 of its soft-argmax positions, weight 10,
   and cross-entropy of its token distribution against a Gaussian around the truth, weight 1;
-- keypoint-guided models (head ``sampled``): L1 of the keypoint prior's positions, weight 10, so the
-  prior learns a good start on its own and the refinement learns what the image adds;
+- keypoint-guided models (head ``sampled``): L1 of the keypoint prior's positions plus 0.1 x the
+  cross-entropy of its visibility and the focal loss of its floor contact, weight 10, so the prior
+  learns a good start on its own and the refinement learns what the image adds;
 - every term weighted per landmark (``landmark_weights``): 1 inside the crop, exp(-2 |r - 1|) outside
   with r = max(|n_x|, |n_y|) the landmark's normalised Chebyshev radius (the crop border is r = 1);
   hand and foot landmarks doubled when their part is at least partly inside the crop.
@@ -92,6 +93,15 @@ def _wmean(loss: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return (loss * w).sum() / w.sum().clamp_min(1e-6)
 
 
+def prior_loss(out: dict, batch: dict, w: torch.Tensor, weights: LossWeights = LossWeights()) -> torch.Tensor:
+    """The keypoint prior's own term: L1 of its positions + 0.1 x (visibility cross-entropy + floor
+    focal loss) of its logits (the refinement adds to those logits, detached)."""
+    return _wmean((out["xy_prior"] - batch["xy_n"]).abs().sum(-1), w) + 0.1 * (
+        _wmean(bce(out["vis_logit_prior"], batch["visibility"]), w)
+        + _wmean(sigmoid_focal(out["floor_logit_prior"], batch["floor_contact"], weights.focal_alpha,
+                               weights.focal_gamma), w))
+
+
 def mammanet_loss(out: dict, batch: dict, weights: LossWeights = LossWeights(),
                   part_l: torch.Tensor | None = None, doubled_part_ids=()) -> tuple[torch.Tensor, dict[str, float]]:
     """Total loss and its terms. ``batch``: xy_n (B, L, 2), visibility, contact, floor_contact (B, L),
@@ -111,7 +121,7 @@ def mammanet_loss(out: dict, batch: dict, weights: LossWeights = LossWeights(),
         total = total + weights.dense * dense
         terms["dense"] = float(dense.detach())
     if "xy_prior" in out and weights.prior > 0:
-        prior = _wmean((out["xy_prior"] - batch["xy_n"]).abs().sum(-1), w)
+        prior = prior_loss(out, batch, w, weights)
         total = total + weights.prior * prior
         terms["prior"] = float(prior.detach())
     if "dense_logits" in out and weights.dense_ce > 0:

@@ -45,6 +45,8 @@ class MammaNetOutput(TypedDict, total=False):
     contact_logit: torch.Tensor  # (B, L)
     floor_logit: torch.Tensor  # (B, L)
     xy_prior: torch.Tensor  # (B, L, 2) the keypoint prior's positions (sampled head)
+    vis_logit_prior: torch.Tensor  # (B, L) its visibility logits (sampled head)
+    floor_logit_prior: torch.Tensor  # (B, L) its floor-contact logits (sampled head)
 
 
 # ---- backbone ------------------------------------------------------------------------------
@@ -342,25 +344,30 @@ def keypoint_frame(kp_bp5: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 class KeypointPrior(nn.Module):
-    """Landmark positions from the points alone, in the points' own centre and scale: it reads no
-    pixels, so it can be trained first on the crops' (points, landmarks) pairs in seconds
-    (train.pretrain_prior) before the image network learns what the pixels add."""
+    """Landmark positions (and visibility and floor-contact logits) from the points alone, in the
+    points' own centre and scale: it reads no pixels, so it can be trained first on the crops'
+    (points, landmarks) pairs in minutes (train.pretrain_prior) before the image network learns what
+    the pixels add. Which side of the body faces the camera and which foot bears the weight are
+    in the points' layout; person contact is not (the refinement sees the other people's mask)."""
 
     def __init__(self, cfg: MammaNetConfig, hidden: int = 512):
         super().__init__()
         P, L = cfg.keypoints_in, cfg.n_landmarks
         self.net = nn.Sequential(nn.Linear(5 * P, hidden), nn.GELU(), nn.Linear(hidden, hidden), nn.GELU())
         self.xy = nn.Linear(hidden, 2 * L)
+        self.logits = nn.Linear(hidden, 2 * L)  # visibility, floor contact
         self.code = nn.Linear(hidden, cfg.head_channels)
 
-    def forward(self, kp_bp5: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """-> positions (B, L, 2) normalised, and a per-person code (B, C) for the refinement."""
+    def forward(self, kp_bp5: torch.Tensor) -> dict[str, torch.Tensor]:
+        """-> xy (B, L, 2) normalised, vis_logit / floor_logit (B, L), code (B, C) for the refinement."""
         c, s = keypoint_frame(kp_bp5)
         present = (kp_bp5[..., 4:5] > 0).to(kp_bp5.dtype)
         local = torch.cat([(kp_bp5[..., :2] - c) / s * present, kp_bp5[..., 2:3] / s * present, kp_bp5[..., 3:5]], -1)
         h = self.net(local.flatten(1))
         B = kp_bp5.shape[0]
-        return c + s * self.xy(h).reshape(B, -1, 2), self.code(h)
+        lg = self.logits(h).reshape(B, -1, 2)
+        return {"xy": c + s * self.xy(h).reshape(B, -1, 2), "vis_logit": lg[..., 0], "floor_logit": lg[..., 1],
+                "code": self.code(h)}
 
 
 class SampledHead(nn.Module):
@@ -391,7 +398,10 @@ class SampledHead(nn.Module):
                            align_corners=False)
         return self.mix(up + self.from_fine(fine_bchw))
 
-    def forward(self, fmap_bchw: torch.Tensor, xy_bl2: torch.Tensor, code_bc: torch.Tensor) -> MammaNetOutput:
+    def forward(self, fmap_bchw: torch.Tensor, prior: dict[str, torch.Tensor]) -> MammaNetOutput:
+        """Refines the prior's positions (not training the prior: it learns from its own loss, which
+        the position NLL's far larger gradient would swamp) and its visibility / floor logits."""
+        xy_bl2, code_bc = prior["xy"].detach(), prior["code"]
         B, L = xy_bl2.shape[:2]
         K = self.grid_k2.shape[0]
         emb = self.embed.weight[None].expand(B, -1, -1)
@@ -404,8 +414,9 @@ class SampledHead(nn.Module):
             f = f[..., 0].reshape(B, -1, L, K).permute(0, 2, 3, 1).reshape(B, L, -1)  # (B, L, K C)
             o = mlp(torch.cat([f, emb, code, at], -1))
             xy = xy + o[..., :2]
-        return MammaNetOutput(xy=xy, log_sigma=o[..., 2] + math.log(0.05), vis_logit=o[..., 3],
-                              contact_logit=o[..., 4], floor_logit=o[..., 5])
+        return MammaNetOutput(xy=xy, log_sigma=o[..., 2] + math.log(0.05),
+                              vis_logit=prior["vis_logit"].detach() + o[..., 3], contact_logit=o[..., 4],
+                              floor_logit=prior["floor_logit"].detach() + o[..., 5])
 
 
 # ---- the network ----------------------------------------------------------------------------------
@@ -502,9 +513,11 @@ class MammaNet(nn.Module):
     def _forward(self, image, mask=None, keypoints=None, others=None) -> MammaNetOutput:
         f, fine = self.features(image, mask, keypoints, others)
         if self.sampled is not None:
-            xy_prior, code = self.prior(self.keypoints_or_none(keypoints, image))
-            out = self.sampled(self.sampled.feature_map(f, fine), xy_prior, code)
-            out["xy_prior"] = xy_prior
+            prior = self.prior(self.keypoints_or_none(keypoints, image))
+            out = self.sampled(self.sampled.feature_map(f, fine), prior)
+            out["xy_prior"] = prior["xy"]
+            out["vis_logit_prior"] = prior["vis_logit"]
+            out["floor_logit_prior"] = prior["floor_logit"]
             return out
         if self.dense is None:
             return self.decoder(f, self.backbone.pos_embed[:, 1:])

@@ -245,13 +245,15 @@ def prior_pairs(shards: CropShards, cfg: MammaNetConfig, seed: int = 0) -> dict[
     the network's crop (no augmentation): the keypoint prior's training set."""
     from mamma_kit.landmarks.losses import landmark_weights
 
-    kps, xys = [], []
+    keys = ("keypoints", "xy_n", "visibility", "floor_contact")
+    parts: dict[str, list] = {k: [] for k in keys}
     for a in range(0, len(shards), 256):
         b = make_batch(shards, np.arange(a, min(len(shards), a + 256)), cfg, None, (seed, a))
-        kps.append(b["keypoints"])
-        xys.append(b["xy_n"])
-    kp, xy = torch.as_tensor(np.concatenate(kps)), torch.as_tensor(np.concatenate(xys))
-    return {"keypoints": kp, "xy_n": xy, "weight": landmark_weights(xy)}
+        for k in keys:
+            parts[k].append(b[k])
+    out = {k: torch.as_tensor(np.concatenate(v)) for k, v in parts.items()}
+    out["weight"] = landmark_weights(out["xy_n"])
+    return out
 
 
 def pretrain_prior(model: MammaNet, pairs: dict[str, torch.Tensor], steps: int, batch: int = 256, lr: float = 2e-3,
@@ -260,6 +262,7 @@ def pretrain_prior(model: MammaNet, pairs: dict[str, torch.Tensor], steps: int, 
     (points, landmarks) pairs under random rotations about the points' centre and the augmentation's
     point drops and jitter; the network's training then starts from a prior that already places the
     landmarks. Returns the L1 (normalised units) before and after."""
+    from mamma_kit.landmarks.losses import prior_loss as prior_term
     from mamma_kit.landmarks.model import keypoint_frame
 
     aug = aug or AugmentConfig()
@@ -268,8 +271,14 @@ def pretrain_prior(model: MammaNet, pairs: dict[str, torch.Tensor], steps: int, 
     kp_all, xy_all, w_all = pairs["keypoints"], pairs["xy_n"], pairs["weight"]
     N = len(kp_all)
 
+    def prior_loss(kp, xy, idx):
+        p = model.prior(kp)
+        out = {"xy_prior": p["xy"], "vis_logit_prior": p["vis_logit"], "floor_logit_prior": p["floor_logit"]}
+        b = {"xy_n": xy, "visibility": pairs["visibility"][idx], "floor_contact": pairs["floor_contact"][idx]}
+        return prior_term(out, b, w_all[idx])
+
     def l1(kp, xy, w):
-        return ((model.prior(kp)[0] - xy).abs().sum(-1) * w).sum() / w.sum().clamp_min(1e-6)
+        return ((model.prior(kp)["xy"] - xy).abs().sum(-1) * w).sum() / w.sum().clamp_min(1e-6)
 
     with torch.no_grad():
         before = float(l1(kp_all[:2048], xy_all[:2048], w_all[:2048]))
@@ -291,7 +300,7 @@ def pretrain_prior(model: MammaNet, pairs: dict[str, torch.Tensor], steps: int, 
             (torch.rand(batch, 1, 1, generator=g) < aug.p_kp_missing)
         kp = torch.where(drop, torch.zeros_like(kp), kp)
         kp[..., :2] = kp[..., :2] + aug.kp_jitter * torch.randn(kp[..., :2].shape, generator=g) * (kp[..., 4:5] > 0)
-        loss = l1(kp, xy, w)
+        loss = prior_loss(kp, xy, idx)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
