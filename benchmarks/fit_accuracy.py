@@ -34,8 +34,10 @@ higher at a lower noise (same outliers; body and hands apart), and the 1.2 % / 5
 videos, people tracked by their true masks) on the captures benchmarks/kp_regressor.py holds out
 from the keypoint regressor's learning. Rows per capture: landmarks at 1.2 % noise / 5 %
 outliers without and with keypoints (the default weight 0.1 and 1), heavy landmark noise (7 % /
-20 % outliers, like a weak network) likewise, and keypoints alone (landmarks off); MPJPE (all, body
-0-21) after the last stage, and the keypoints' share of the stage-2 energy.
+20 % outliers, like a weak network) likewise, keypoints alone (landmarks off), and the network's
+own landmarks (the shipped default MammaNet through `mamma-kit landmarks`) without and with keypoints
+(`--kp-network-only` runs just those); MPJPE (all, body 0-21) after the last stage, and the keypoints'
+share of the stage-2 energy.
 """
 
 from __future__ import annotations
@@ -214,7 +216,10 @@ KP_ROWS = (  # (label, landmark noise, outliers, keypoint weight, landmark weigh
     ("landmarks 1.2 %", "1.2%", 0.05, 0.0, 1.0), ("landmarks 1.2 % + keypoints (default 0.1)", "1.2%", 0.05, 0.1, 1.0),
     ("landmarks 1.2 % + keypoints (weight 1)", "1.2%", 0.05, 1.0, 1.0), ("keypoints alone", "1.2%", 0.05, 1.0, 0.0),
     ("landmarks 7 %, 20 % outl.", "7%", 0.2, 0.0, 1.0), ("landmarks 7 %, 20 % outl. + kp (default 0.1)", "7%", 0.2, 0.1, 1.0),
-    ("landmarks 7 %, 20 % outl. + kp (weight 1)", "7%", 0.2, 1.0, 1.0))
+    ("landmarks 7 %, 20 % outl. + kp (weight 1)", "7%", 0.2, 1.0, 1.0),
+    # the network's landmarks (`mamma-kit landmarks`, the shipped default weights) on the true masks
+    ("network landmarks (embedded-kp)", "net", 0.0, 0.0, 1.0),
+    ("network landmarks + keypoints (default 0.1)", "net", 0.0, 0.1, 1.0))
 
 
 def keypoint_rows(a) -> list[dict]:
@@ -238,8 +243,13 @@ def keypoint_rows(a) -> list[dict]:
         cams = pick_cameras(rig, min(a.kp_cameras, len(rig)))
         made = None
         for label, noise, outl, kw, lw in KP_ROWS:
+            if a.kp_network_only and noise != "net":
+                continue
             if made != (noise, outl):
-                mk("landmarks", ws.root, "--source", "gt", "--noise", noise, "--outliers", outl, "--seed", 0, "-q")
+                if noise == "net":
+                    mk("landmarks", ws.root, "--force", "-q")
+                else:
+                    mk("landmarks", ws.root, "--source", "gt", "--noise", noise, "--outliers", outl, "--seed", 0, "-q")
                 made = (noise, outl)
             r = fit_and_evaluate(ws, cams, cfg=FitConfig(keypoint_weight=kw, landmark_weight=lw), frames=a.kp_frames,
                                  penetration_frames=0)
@@ -274,6 +284,7 @@ def main() -> None:
     ap.add_argument("--kp-cases", default="duo2718,studio3141")
     ap.add_argument("--kp-frames", type=int, default=30)
     ap.add_argument("--kp-cameras", type=int, default=4)
+    ap.add_argument("--kp-network-only", action="store_true", help="only the rows with the network's landmarks")
     a = ap.parse_args()
     import torch
 

@@ -216,7 +216,7 @@ CONFIGS: dict[str, MammaNetConfig] = {
     )
 }
 
-DEFAULT_ARCH = "embedded"
+DEFAULT_ARCH = "embedded-kp"
 
 
 def get_config(name: str, **overrides: Any) -> MammaNetConfig:

@@ -19,8 +19,8 @@ def _embedded() -> dict:
     from mamma_kit.landmarks.weights import embedded_weights_path, read_checkpoint
 
     p = embedded_weights_path(DEFAULT_ARCH)
-    fix = ("train them: `mamma-kit train mamma_kit/landmarks/configs/embedded.toml`, copy the .pt and model card into "
-           "mamma_kit/landmarks/weights/; meanwhile use --weights PATH or --source gt")
+    fix = (f"train them: `mamma-kit train mamma_kit/landmarks/configs/{DEFAULT_ARCH}.toml`, copy the .pt and model "
+           "card into mamma_kit/landmarks/weights/; meanwhile use --weights PATH or --source gt")
     if not p.is_file():
         return _check("MammaNet embedded weights", False, f"{p.name} not in the package", fix, optional=True)
     try:

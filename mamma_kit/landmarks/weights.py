@@ -174,7 +174,7 @@ def load_model(weights: str | Path | None = None, arch: str | None = None, devic
             if not path.is_file():
                 raise UserError(
                     f"the embedded MammaNet weights ({name}) are not installed in this package ({path.name} missing)",
-                    "train them with `mamma-kit train mamma_kit/landmarks/configs/embedded.toml`, pass --weights PATH "
+                    f"train them with `mamma-kit train mamma_kit/landmarks/configs/{name}.toml`, pass --weights PATH "
                     "(--arch official with the published checkpoint), or on a synthetic workspace use --source gt")
             weights = path
     p = Path(weights)
