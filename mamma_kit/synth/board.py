@@ -588,6 +588,12 @@ class BoardRenderer:
             frame += self._noise[self._noise_k]
         return cv2.convertScaleAbs(frame)
 
+def _render_unit(unit) -> dict:
+    """One process's share of a board session: some cameras, the session's plan given."""
+    out_dir, rig, spec, kw = unit
+    return render_board_session(out_dir, rig, spec, **kw)
+
+
 def _rig_board_poses(cam: Camera, R_wb: np.ndarray, t_wb: np.ndarray):
     """Board-to-camera poses for arrays of board-to-world poses."""
     R_cb = cam.R[None] @ R_wb
@@ -604,7 +610,7 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
                          video_ext: str = ".mp4", trajectory: BoardTrajectory | None = None,
                          cameras: Sequence[str] | None = None, progress: bool = True,
                          backgrounds: Mapping[str, np.ndarray] | None = None, back: str = "plain",
-                         behind: Sequence[str] = (), **plan_kw) -> dict:
+                         behind: Sequence[str] = (), workers: int | None = 1, **plan_kw) -> dict:
     """Render a board session as one H.264 video per camera: ``out_dir/<cam><video_ext>``.
 
     Parameters (what a recipe's [board] table maps onto):
@@ -636,6 +642,8 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
                    the front's print through it); see :class:`BoardRenderer`
       behind       cameras that see the hand-held board only from behind (planned so by
                    :func:`plan_session`; ignored with a ready ``trajectory``)
+      workers      render the cameras in this many processes (None: one per CPU); the videos
+                   are the same as rendered in one
       plan_kw      passed to :func:`plan_session` (hold_s, volume_radius, height_range, ...)
 
     Returns a dict: ``videos`` {cam: path}, ``frame_times`` {cam: camera-clock times},
@@ -654,10 +662,27 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
     traj = trajectory or plan_session(rig, spec, seed=seed, duration_s=duration_s, closeups=closeups,
                                       n_closeups=n_closeups, floor_pose=floor_pose, tremor_m=tremor_m, **plan_kw)
     clocks = dict(clocks or {})
-    tex = _Texture(spec)
-    tex_back = _Texture(spec, see_through=True) if back == "see-through" else None
     result: dict = {"videos": {}, "frame_times": {}, "ref_times": {}, "visible": {}, "from_behind": {}}
     names = list(cameras) if cameras is not None else rig.names
+    from mamma_kit.core.executor import default_workers, run_units
+
+    if default_workers(len(names), workers) > 1:
+        kw = dict(seed=seed, duration_s=duration_s, fps=fps, clocks=clocks, noise_sigma=noise_sigma,
+                  exposure_s=exposure_s, motion_blur=motion_blur, supersample=supersample, crf=crf,
+                  rotation_deg=rotation_deg, video_ext=video_ext, trajectory=traj, progress=progress, back=back,
+                  workers=1)
+        units = [(out_dir, rig, spec, kw | {"cameras": [n],
+                                            "frame_times": {n: frame_times[n]} if frame_times and n in frame_times
+                                            else None,
+                                            "backgrounds": {n: backgrounds[n]} if backgrounds and n in backgrounds
+                                            else None})
+                 for n in names]
+        for part in run_units(_render_unit, units, workers):
+            for key in result:
+                result[key].update(part[key])
+        names = []
+    tex = _Texture(spec)
+    tex_back = _Texture(spec, see_through=True) if back == "see-through" else None
     for name in names:
         ci = rig.names.index(name)  # seeds depend on the camera, not on which others are rendered
         rng = np.random.default_rng([seed + 1000, ci])
