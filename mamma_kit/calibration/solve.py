@@ -440,6 +440,7 @@ def summary(result: CalibrationResult, output: Path | None = None, figures: list
             "center_m": c.center.tolist(), "size": list(c.size),
             "focal_std_px": d["intrinsics_std"].get("fx"),
             "cross_validation_px": d.get("cross_validation_px"),
+            "frames_detected": d["frames_detected"], "frames_seen_from_behind": d["frames_seen_from_behind"],
         }
     out = {"rms_px": result.diagnostics["rms_px"], "cameras": cams, "world": result.diagnostics["world"],
            "events": result.diagnostics["events"], "warnings": result.warnings,

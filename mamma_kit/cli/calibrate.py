@@ -79,7 +79,10 @@ def calibrate_cmd(
                  f"{res['world']['source']}; clocks: {res.get('timing', '?')}")
         for n, cd in res["cameras"].items():
             cv = (cd.get("cross_validation_px") or {}).get("median_px")
+            behind = f", {cd['frames_seen_from_behind']} frames seen from behind" \
+                if cd.get("frames_seen_from_behind") else ""
             log.info(f"  {n}: rms {cd['rms_px']:.3f} px, fx {cd['fx']:.1f} px, {cd['views']} views "
-                     f"({cd['shared_views']} shared)" + (f", cross-validation {cv:.2f} px" if cv is not None else ""))
+                     f"({cd['shared_views']} shared){behind}" + (f", cross-validation {cv:.2f} px" if cv is not None
+                                                                 else ""))
         if res.get("figures"):
             log.info(f"figures: {Path(res['figures'][0]).parent}")
