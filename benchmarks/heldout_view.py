@@ -86,7 +86,7 @@ def fitted_points(ws, model, reg) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int) -> dict:
+def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int, reuse: bool = False) -> dict:
     from mamma_kit.core.calibfile import read_calibration
     from mamma_kit.core.camera import Rig, triangulate_points
     from mamma_kit.core.identities import read_identities
@@ -94,10 +94,16 @@ def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int) -> dict:
 
     others = [c for c in ws.load_capture().camera_names if c != cam]
     full = read_identities(ws.identities)
-    hw = heldout_copy(ws, cam, root)
     t0 = time.perf_counter()
-    cli("match", hw.root, "--cameras", ",".join(others), "--no-plots", "-q")
-    cli("fit", hw.root, "--camera-list", ",".join(others), "--threads", threads, "-q")
+    done = root / "heldout" / cam
+    if reuse and (done / "smplx" / "fit_report.json").is_file():  # a finished held-out fit
+        from mamma_kit.core.workspace import Workspace
+
+        hw = Workspace(done)
+    else:
+        hw = heldout_copy(ws, cam, root)
+        cli("match", hw.root, "--cameras", ",".join(others), "--no-plots", "-q")
+        cli("fit", hw.root, "--camera-list", ",".join(others), "--threads", threads, "-q")
     fit_s = time.perf_counter() - t0
     held = read_identities(hw.identities)
     rig, _ = read_calibration(ws.calibration)
@@ -130,7 +136,7 @@ def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int) -> dict:
                 xy_c, w_c, cams = [], [], []
                 for c, ot in other_tracks:
                     ko = np.flatnonzero(kts[c].track_ids == ot)
-                    to = nearest_frames(kts[c].frame_times, kt.frame_times[t:t + 1])[0] if len(ko) else -1
+                    to = nearest_frames(kt.frame_times[t:t + 1], kts[c].frame_times)[0] if len(ko) else -1
                     if to < 0 or not kts[c].valid[to, ko[0]]:
                         continue
                     xy_c.append(kts[c].xy[to, ko[0], BODY_POINTS])
@@ -164,6 +170,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--cameras", default=None, help="held-out cameras (default: each in turn)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--reuse", action="store_true", help="evaluate held-out fits already in ROOT/heldout/<cam>")
     a = ap.parse_args()
     from mamma_kit.body.kp_regressor import keypoint_regressor
     from mamma_kit.body.model import load_body_model
@@ -179,7 +186,7 @@ def main() -> None:
     cams = a.cameras.split(",") if a.cameras else ws.load_capture().camera_names
     rows = []
     for cam in cams:
-        r = evaluate_camera(ws, cam, a.root, model, reg, a.threads)
+        r = evaluate_camera(ws, cam, a.root, model, reg, a.threads, a.reuse)
         rows.append(r)
         print(f"held out {cam}: fit {r['fit']['median_pct']} % of box height, PCK@10 {r['fit']['pck10']} %   |   "
               f"triangulated keypoints {r['triangulated']['median_pct']} %, PCK@10 {r['triangulated']['pck10']} %   "
