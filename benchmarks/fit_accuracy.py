@@ -294,17 +294,11 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     print(f"# fit accuracy; torch {torch.__version__}, {a.threads} threads, load average "
           f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
-    if a.keypoints:
-        rows = keypoint_rows(a)
+    if a.keypoints or a.sweep:
+        out = keypoint_rows(a) if a.keypoints else sweep(a)
         print(f"# load average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
         if a.json:
-            a.json.write_text(json.dumps(rows, indent=1, default=float))
-        return
-    if a.sweep:
-        report = sweep(a)
-        print(f"# load average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
-        if a.json:
-            a.json.write_text(json.dumps(report, indent=1, default=float))
+            a.json.write_text(json.dumps(out, indent=1, default=float))
         return
     report = {}
     for case in a.cases.split(","):
