@@ -98,7 +98,7 @@ def render(out: Path, args) -> None:
     traj = plan_session(rig, spec, seed=args.seed, duration_s=args.duration, n_closeups=args.closeups)
     t0 = time.perf_counter()
     render_board_session(out / "board", rig, spec, seed=args.seed, duration_s=args.duration, fps=args.fps,
-                         trajectory=traj, supersample=2, progress=False)
+                         trajectory=traj, supersample=2, progress=False, workers=None)  # a process per camera
     write_calibration(out / "gt.toml", rig)
     print(f"rendered {args.cams} x {int(args.duration * args.fps)} frames at {w}x{h} in "
           f"{time.perf_counter() - t0:.0f} s", flush=True)
