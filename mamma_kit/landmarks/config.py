@@ -120,7 +120,7 @@ class MammaNetConfig:
                             "pick heads / dec_heads that divide dim")
         if self.stem not in ("patch", "conv"):
             raise UserError(f"MammaNet config {self.name}: stem must be 'patch' or 'conv'")
-        if self.stem == "conv" and (self.patch_padding or _factors(self.patch) is None):
+        if self.stem == "conv" and (self.patch_padding or stem_strides(self.patch) is None):
             raise UserError(f"MammaNet config {self.name}: a conv stem needs patch = a product of 2s and 3s "
                             "and no patch padding")
         if self.mask_in_stem and (self.stem != "conv" or not self.use_mask):
@@ -162,7 +162,7 @@ class MammaNetConfig:
         return cls(**kw).validate()
 
 
-def _factors(n: int) -> list[int] | None:
+def stem_strides(n: int) -> list[int] | None:
     """Strides of a conv stem for patch size n: 2s, then a 3 if needed (12 -> [2, 2, 3])."""
     out = []
     while n % 2 == 0 and n > 1:

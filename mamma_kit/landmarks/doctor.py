@@ -37,10 +37,10 @@ def _embedded() -> dict:
 
 def _official_checkpoint(path: Path) -> dict:
     from mamma_kit.landmarks.model import state_dict_shapes
-    from mamma_kit.landmarks.weights import _state_dict_of, read_checkpoint
+    from mamma_kit.landmarks.weights import read_checkpoint, state_dict_of
 
     try:
-        sd = _state_dict_of(read_checkpoint(path, "official MammaNet checkpoint"), path)
+        sd = state_dict_of(read_checkpoint(path, "official MammaNet checkpoint"), path)
     except Exception as e:  # noqa: BLE001
         return _check("official MammaNet checkpoint", False, str(e), "check MAMMA_KIT_MAMMANET_CKPT", optional=True)
     want = dict(state_dict_shapes("official"))

@@ -12,11 +12,9 @@ network. Memory is one frame plus a few batches of crops, whatever the video len
 
 from __future__ import annotations
 
-import queue
-import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Iterator
+from typing import Iterator
 
 import cv2
 import numpy as np
@@ -29,6 +27,7 @@ from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.tracks import KeypointTracks, LandmarkTracks, MaskTracks
 from mamma_kit.landmarks import crop as C
+from mamma_kit.landmarks.prefetch import threaded
 from mamma_kit.landmarks.weights import LoadedModel
 
 MIN_MASK_AREA = 16  # px; (almost) empty masks are skipped as in the official pre-processing
@@ -207,42 +206,6 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
             yield _Job(int(t), int(k), res[0], res[1], res[2], extra)
 
 
-def _threaded(gen_fn: Callable[[], Iterator], maxsize: int) -> Iterator:
-    """Run a generator in a thread; yield its items (exceptions re-raised here)."""
-    q: queue.Queue = queue.Queue(maxsize=maxsize)
-    done = object()
-    stop = threading.Event()
-
-    def work():
-        try:
-            for item in gen_fn():
-                while not stop.is_set():
-                    try:
-                        q.put(item, timeout=0.2)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-            q.put(done)
-        except BaseException as e:  # noqa: BLE001 - handed to the consumer
-            q.put(e)
-
-    th = threading.Thread(target=work, daemon=True)
-    th.start()
-    try:
-        while True:
-            item = q.get()
-            if item is done:
-                return
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        th.join(timeout=5)
-
-
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
                min_area: int = MIN_MASK_AREA, producer: dict | None = None,
                keypoints: KeypointTracks | None = None) -> tuple[LandmarkTracks, dict]:
@@ -296,7 +259,7 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
     done = 0
     with _progress() as bar:
         task = bar.add_task(f"landmarks {cam}", total=total)
-        for job in _threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints), maxsize=2 * batch):
+        for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints), maxsize=2 * batch):
             pending.append(job)
             if len(pending) >= batch:
                 n = len(pending)

@@ -57,7 +57,7 @@ def _gt_layouts(dirs: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _predicted_layouts(model, shards, n: int, batch: int = 16, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
     """The network's positions (N, L, 2) in input-crop px and true visibility on ``n`` crops."""
-    from mamma_kit.landmarks.train import batch_to_torch, make_batch, run_model
+    from mamma_kit.landmarks.batches import batch_to_torch, make_batch, run_model
 
     cfg = model.cfg
     H, W = cfg.input_hw

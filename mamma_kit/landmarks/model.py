@@ -71,9 +71,9 @@ class ConvStem(nn.Module):
 
     def __init__(self, cfg: MammaNetConfig):
         super().__init__()
-        from mamma_kit.landmarks.config import _factors
+        from mamma_kit.landmarks.config import stem_strides
 
-        strides = _factors(cfg.patch)
+        strides = stem_strides(cfg.patch)
         widths = [max(16, cfg.dim >> (len(strides) - 1 - i)) for i in range(len(strides))]
         self.down = nn.ModuleList()
         self.refine = nn.ModuleList()

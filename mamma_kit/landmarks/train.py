@@ -50,12 +50,14 @@ from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import atomic_path, atomic_write_text, read_toml, sha256_file, write_json
 from mamma_kit.landmarks import crop as C
-from mamma_kit.landmarks.augment import AugmentConfig, collate, prepare_sample
+from mamma_kit.landmarks.augment import AugmentConfig
+from mamma_kit.landmarks.batches import batch_to_torch, make_batch, run_model
 from mamma_kit.landmarks.config import MammaNetConfig, get_config
 from mamma_kit.landmarks.data import CropShards
 from mamma_kit.landmarks.losses import DOUBLED_PARTS, LossWeights, mammanet_loss
 from mamma_kit.landmarks.metrics import landmark_metrics
 from mamma_kit.landmarks.model import MammaNet, count_parameters
+from mamma_kit.landmarks.prefetch import threaded
 from mamma_kit.landmarks.weights import save_weights
 
 CHECKPOINT_FORMAT = "mamma-kit/mammanet-train/1"
@@ -157,24 +159,6 @@ def _param_groups(model: MammaNet, wd: float) -> list[dict]:
     return [{"params": decay, "weight_decay": wd}, {"params": no_decay, "weight_decay": 0.0}]
 
 
-def batch_to_torch(b: dict[str, np.ndarray], device: str) -> dict[str, torch.Tensor]:
-    """A collated batch of ``prepare_sample`` outputs -> tensors (the network's inputs and labels)."""
-    t = {"image": C.normalise_images(b["image"], device), "mask": C.mask_tensor(b["mask"], device),
-         **{k: torch.as_tensor(b[k], device=device) for k in ("xy_n", "visibility", "contact", "floor_contact")}}
-    if "others" in b:
-        t["others"] = C.mask_tensor(b["others"], device)
-    if "keypoints" in b:
-        t["keypoints"] = torch.as_tensor(b["keypoints"], device=device)
-    return t
-
-
-def run_model(model: MammaNet, t: dict[str, torch.Tensor]):
-    """The model on a batch of ``batch_to_torch``: only the inputs its config reads."""
-    cfg = model.cfg
-    return model(t["image"], t["mask"] if cfg.use_mask else None, t.get("keypoints") if cfg.keypoints_in else None,
-                 t.get("others") if cfg.others_in_stem else None)
-
-
 def _ensure_keypoints(cfg: MammaNetConfig, dirs: list[Path]) -> None:
     """A keypoint-guided model reads the keypoint model's points of every crop: run it once on the
     shards that have none yet (keypoints_NNNN.npz beside them; later runs reuse them)."""
@@ -182,13 +166,6 @@ def _ensure_keypoints(cfg: MammaNetConfig, dirs: list[Path]) -> None:
         from mamma_kit.landmarks.data import annotate_keypoints
 
         annotate_keypoints(dirs)
-
-
-def make_batch(shards: CropShards, indices: np.ndarray, cfg: MammaNetConfig, aug: AugmentConfig | None,
-               seed_key: tuple[int, ...]) -> dict[str, np.ndarray]:
-    H, W = cfg.input_hw
-    return collate([prepare_sample(shards[int(i)], (W, H), cfg.antialias, aug, np.random.default_rng([*seed_key, j]))
-                    for j, i in enumerate(indices)])
 
 
 @torch.inference_mode()
@@ -391,8 +368,6 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
         for st in range(start, s.steps):
             yield st, make_batch(train_set, train_set.batch_indices(s.seed, st, B), cfg, tc.augment, (s.seed, st))
 
-    from mamma_kit.landmarks.inference import _threaded
-
     def run_eval(at: int) -> dict | None:
         if val_set is None:
             return None
@@ -412,7 +387,7 @@ def train(config_path: str | Path, resume: bool = False, device: str = "cpu", ou
     running: dict[str, float] = {}
     amp = device.startswith("cuda")
     try:
-        for st, b in _threaded(lambda: batches(step), maxsize=2):
+        for st, b in threaded(lambda: batches(step), maxsize=2):
             for g in opt.param_groups:
                 g["lr"] = lr_at(st, s)
             t = batch_to_torch(b, device)

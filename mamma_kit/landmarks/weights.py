@@ -107,7 +107,9 @@ def read_checkpoint(path: str | Path, what: str = "MammaNet weights") -> dict:
     return obj
 
 
-def _state_dict_of(obj: dict, p: Path) -> dict[str, torch.Tensor]:
+def state_dict_of(obj: dict, p: Path) -> dict[str, torch.Tensor]:
+    """The tensors of a read checkpoint: its "state_dict" (without a Lightning "model." prefix) or
+    the dict itself when it holds only tensors; UserError naming ``p`` when there are none."""
     sd = obj.get("state_dict", obj if all(isinstance(v, torch.Tensor) for v in obj.values()) else None)
     if not isinstance(sd, dict) or not sd:
         raise UserError(f"{p.name} has no 'state_dict' with weights", "pass a Lightning .ckpt or a mamma-kit .pt")
@@ -186,7 +188,7 @@ def load_model(weights: str | Path | None = None, arch: str | None = None, devic
                             f"drop --arch (the file carries its architecture) or pass --arch {cfg.name}")
         landmark_set, card = str(obj.get("landmark_set", "")), dict(obj.get("card", {}))
     else:
-        sd0 = _state_dict_of(obj, p)
+        sd0 = state_dict_of(obj, p)
         name = arch or infer_arch(sd0)
         if name is None:
             raise UserError(f"{p.name} matches no known MammaNet architecture",
@@ -194,7 +196,7 @@ def load_model(weights: str | Path | None = None, arch: str | None = None, devic
         cfg = get_config(name)
         landmark_set = OFFICIAL_LANDMARK_SET if name.startswith("official") else ""
         card = {}
-    sd = obj["state_dict"] if obj.get("format") == WEIGHTS_FORMAT else _state_dict_of(obj, p)
+    sd = obj["state_dict"] if obj.get("format") == WEIGHTS_FORMAT else state_dict_of(obj, p)
     with torch.device("meta"):  # no random init of weights that are about to be replaced
         model = MammaNet(cfg)
     diff = _mismatch(model, sd)
