@@ -76,6 +76,18 @@ def _people(v) -> int | None:
     return v
 
 
+def select_cameras(all_names: list[str], only: list[str] | str | None) -> list[str]:
+    """``only`` (a list or comma-separated text) checked against the workspace's cameras;
+    all of ``all_names`` when it is empty. UserError naming the unknown ones."""
+    if not only:
+        return list(all_names)
+    want = [c.strip() for c in only.split(",") if c.strip()] if isinstance(only, str) else list(only)
+    bad = [c for c in want if c not in all_names]
+    if bad:
+        raise UserError(f"unknown camera(s) {', '.join(bad)}", f"cameras in this workspace: {', '.join(all_names)}")
+    return want
+
+
 class Workspace:
     """Paths of a capture workspace, plus loading of its capture.toml."""
 

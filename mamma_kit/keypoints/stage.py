@@ -97,8 +97,8 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
 def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = True, pictures: bool = True,
                   force: bool = False, threads: int | None = None) -> dict:
     """BlazePose keypoints for every tracked person of every camera (see the module docstring)."""
+    from mamma_kit.core.workspace import select_cameras
     from mamma_kit.keypoints.runtime import DETECTOR, LANDMARKER, model_path
-    from mamma_kit.masks.stage import select_cameras
 
     cap = ws.load_capture()
     cams = select_cameras(cap.camera_names, cameras)

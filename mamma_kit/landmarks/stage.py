@@ -18,7 +18,7 @@ from mamma_kit.core.manifest import StageManifest, producer
 
 
 def _camera_names(ws, only, fallback_dir: Path | None = None) -> list[str]:
-    from mamma_kit.masks.stage import select_cameras
+    from mamma_kit.core.workspace import select_cameras
 
     if ws.capture_toml.is_file():
         names = ws.load_capture().camera_names

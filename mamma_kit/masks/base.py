@@ -2,7 +2,8 @@
 
 A backend turns one camera's video into a core.tracks.MaskTracks: per frame (the video's own
 timestamps) and track, a mask (RLE), its box and a score, with track ids that stay with one
-person for as long as the backend can follow them. ``get_backend(name, **options)`` builds one.
+person for as long as the backend can follow them. ``backends.get_backend(name, **options)``
+builds one (the backends import this module, so it imports none of them).
 """
 
 from __future__ import annotations
@@ -13,10 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from mamma_kit.core.errors import UserError
 from mamma_kit.core.tracks import MaskTracks
-
-BACKENDS = ("builtin", "pose", "sam2", "gt")
 
 
 @dataclass
@@ -39,36 +37,11 @@ class MaskBackend(Protocol):
         ...
 
 
-def get_backend(name: str, **options) -> MaskBackend:
-    if name == "builtin":
-        from mamma_kit.masks.builtin import BuiltinBackend
-
-        return BuiltinBackend(**{k: v for k, v in options.items() if k in ("settings",)})
-    if name == "pose":
-        from mamma_kit.masks.pose import PoseBackend
-
-        return PoseBackend(**{k: v for k, v in options.items() if k in ("people",)})
-    if name == "gt":
-        from mamma_kit.masks.gt import GtBackend
-
-        return GtBackend()
-    if name == "sam2":
-        from mamma_kit.masks.sam2 import Sam2Backend
-
-        return Sam2Backend(**options)
-    raise UserError(f"unknown mask backend '{name}'", f"use one of {', '.join(BACKENDS)}")
-
-
 def track_summary(mt: MaskTracks) -> dict:
     present = mt.present
     return {"camera": mt.camera, "frames": int(len(mt.frame_times)), "tracks": int(len(mt.track_ids)),
             "instances": int(present.sum()),
             "frames_per_track": {str(int(t)): int(n) for t, n in zip(mt.track_ids, present.sum(0))}}
-
-
-def relabel_compact(track_ids: np.ndarray) -> np.ndarray:
-    """Track ids as 0..K-1 in order of first appearance (stable output ids)."""
-    return np.arange(len(track_ids), dtype=np.int64)
 
 
 class MaskTrackBuilder:

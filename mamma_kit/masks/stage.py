@@ -15,17 +15,7 @@ from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.executor import run_units
 from mamma_kit.core.manifest import StageManifest, producer
-
-
-def select_cameras(all_names: list[str], only: list[str] | str | None) -> list[str]:
-    """``only`` (a list or comma-separated text) checked against the workspace's cameras."""
-    if not only:
-        return list(all_names)
-    want = [c.strip() for c in only.split(",") if c.strip()] if isinstance(only, str) else list(only)
-    bad = [c for c in want if c not in all_names]
-    if bad:
-        raise UserError(f"unknown camera(s) {', '.join(bad)}", f"cameras in this workspace: {', '.join(all_names)}")
-    return want
+from mamma_kit.core.workspace import select_cameras
 
 
 def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None = None, prompts: Path | None = None,
@@ -34,7 +24,7 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
               plate: bool = True) -> dict:
     """Person mask tracks for every camera of the workspace (see the module docstring).
     ``people``: how many people to expect (default: capture.toml's [capture] people)."""
-    from mamma_kit.masks.base import BACKENDS
+    from mamma_kit.masks.backends import BACKENDS
 
     if backend not in BACKENDS:
         raise UserError(f"unknown --backend '{backend}'", f"use one of {', '.join(BACKENDS)}")
@@ -103,7 +93,8 @@ def _track_one(c: str, root: Path, backend: str, options: dict, settings: dict, 
                sam2_checkpoint) -> dict:
     """One camera: masks/<c>.npz, its picture and its manifest (runs in a worker process)."""
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.masks.base import CameraInput, get_backend
+    from mamma_kit.masks.backends import get_backend
+    from mamma_kit.masks.base import CameraInput
 
     ws = Workspace(root)
     entry = ws.load_capture().cameras[c]

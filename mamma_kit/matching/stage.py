@@ -18,7 +18,7 @@ def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path |
               plots: bool = True, force: bool = False) -> dict:
     """Cross-view identities of every track (see matching.match)."""
     from mamma_kit.core.identities import write_identities
-    from mamma_kit.masks.stage import select_cameras
+    from mamma_kit.core.workspace import select_cameras
     from mamma_kit.matching.match import MatchSettings, match_workspace
 
     names = ws.load_capture().camera_names if ws.capture_toml.is_file() else \
