@@ -10,11 +10,13 @@ to the lowest id, and all arithmetic is element-wise float64 numpy (no BLAS redu
 It takes about 30 ms for a SMPL-X-sized mesh, so no cache is needed; the open body's set
 is also baked into its file, which freezes the set the embedded MammaNet was trained on.
 
-Another definition (the official one, issue 11) loads with ``load_landmark_definition``.
+Another definition (the official one, issue 11) loads with ``load_landmark_definition``. Both
+return a ``LandmarkSet`` (vertex ids and their parts), the set a ``model.BodyModel`` carries.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,28 @@ LANDMARK_COUNT = 512
 
 #: FPS density weight per part of skeleton.PART_NAMES.
 PART_DENSITY = {"left_hand": 3.0, "right_hand": 3.0, "head": 1.8, "left_foot": 1.6, "right_foot": 1.6}
+
+
+@dataclass
+class LandmarkSet:
+    """A set of surface landmarks on a model.
+
+    ids: (L,) int64 vertex ids; part: (L,) int64 indices into ``part_names`` (default
+    skeleton.LANDMARK_PART_NAMES: body, left_hand, right_hand, head, left_foot, right_foot);
+    source: how it was made ("fps", "baked", or a file path).
+    """
+
+    ids: np.ndarray
+    part: np.ndarray
+    part_names: list[str] = field(default_factory=lambda: list(sk.LANDMARK_PART_NAMES))
+    source: str = "fps"
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def mask(self, part_name: str) -> np.ndarray:
+        """(L,) bool: landmarks of one part."""
+        return self.part == self.part_names.index(part_name)
 
 
 def density_weights(weights_vj: np.ndarray) -> np.ndarray:
@@ -62,7 +86,6 @@ def landmark_parts_for(vertex_part: np.ndarray, ids: np.ndarray) -> np.ndarray:
 def landmark_set_fps(v_template: np.ndarray, weights_vj: np.ndarray, vertex_part: np.ndarray,
                      count: int = LANDMARK_COUNT):
     """The default landmark set of a model from its rest mesh and skinning weights."""
-    from mamma_kit.body.model import LandmarkSet
 
     ids = weighted_fps(v_template, density_weights(weights_vj), count)
     return LandmarkSet(ids, landmark_parts_for(vertex_part, ids), source="fps")
@@ -86,7 +109,6 @@ def load_landmark_definition(verts_path: str | Path, num_vertices: int, parts_pa
     Use it with ``model.with_landmarks(load_landmark_definition(p, model.num_vertices, ...,
     vertex_part=model.vertex_part))``.
     """
-    from mamma_kit.body.model import LandmarkSet
     from mamma_kit.core.errors import require_file
 
     vp = require_file(verts_path, "landmark definition")

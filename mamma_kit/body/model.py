@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from mamma_kit.body import skeleton as sk
+from mamma_kit.body.landmarks import LANDMARK_COUNT, LandmarkSet, landmark_parts_for, landmark_set_fps
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import sha256_file
 
@@ -37,28 +38,6 @@ REQUIRED_KEYS = ("v_template", "f", "weights", "J_regressor", "kintree_table", "
 #: Weights at or below this are dropped from the sparse skinning table.
 SKIN_EPS = 1e-6
 MAX_WEIGHTS_PER_VERTEX = 16
-
-
-@dataclass
-class LandmarkSet:
-    """A set of surface landmarks on a model.
-
-    ids: (L,) int64 vertex ids; part: (L,) int64 indices into ``part_names`` (default
-    skeleton.LANDMARK_PART_NAMES: body, left_hand, right_hand, head, left_foot, right_foot);
-    source: how it was made ("fps", "baked", or a file path).
-    """
-
-    ids: np.ndarray
-    part: np.ndarray
-    part_names: list[str] = field(default_factory=lambda: list(sk.LANDMARK_PART_NAMES))
-    source: str = "fps"
-
-    def __len__(self) -> int:
-        return len(self.ids)
-
-    def mask(self, part_name: str) -> np.ndarray:
-        """(L,) bool: landmarks of one part."""
-        return self.part == self.part_names.index(part_name)
 
 
 @dataclass(eq=False)
@@ -335,7 +314,6 @@ def vertex_parts_from_weights(weights_vj: np.ndarray) -> np.ndarray:
 
 def read_body_model_file(path: Path, gender: str = "neutral") -> BodyModel:
     """Read and validate an SMPL-X-layout .npz (our open body or a real SMPL-X file)."""
-    from mamma_kit.body.landmarks import LANDMARK_COUNT, landmark_set_fps, landmark_parts_for
 
     d = _read_keys(path)
 
