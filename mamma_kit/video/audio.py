@@ -17,7 +17,7 @@ import av
 import numpy as np
 
 from mamma_kit.core.errors import UserError
-from mamma_kit.video.reader import _corrupt, _open
+from mamma_kit.video.reader import corrupt_error, open_container
 
 
 @dataclass
@@ -50,7 +50,7 @@ class Audio:
 
 
 def has_audio(path: str | Path) -> bool:
-    c = _open(Path(path))
+    c = open_container(Path(path))
     try:
         return bool(c.streams.audio)
     finally:
@@ -63,7 +63,7 @@ def read_audio(path: str | Path, stream_index: int = 0) -> Audio:
     Raises a UserError if the file has no audio stream.
     """
     path = Path(path)
-    c = _open(path)
+    c = open_container(path)
     try:
         if len(c.streams.audio) <= stream_index:
             raise UserError(
@@ -101,7 +101,7 @@ def read_audio(path: str | Path, stream_index: int = 0) -> Audio:
                 chunks.append(x)
                 cursor += len(x)
         except av.error.FFmpegError as e:
-            raise _corrupt(path, t, e) from None
+            raise corrupt_error(path, t, e) from None
         if not chunks:
             raise UserError(f"{path.name}: the audio stream holds no samples", "record with sound on")
         samples = np.concatenate(chunks, 0).astype(np.float32, copy=False)

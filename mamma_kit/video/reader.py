@@ -17,7 +17,8 @@ import numpy as np
 from mamma_kit.core.errors import UserError
 
 
-def _open(path: Path):
+def open_container(path: Path):
+    """``av.open`` of a video or audio file; a missing, folder or unreadable path is a UserError."""
     if not path.exists():
         raise UserError(f"video not found: {path}", "check the path in the command or capture.toml")
     if path.is_dir():
@@ -33,7 +34,8 @@ def _open(path: Path):
         raise UserError(f"cannot open video {path}: {e}", "check the file is a complete .mp4/.mov") from None
 
 
-def _corrupt(path: Path, t: float | None, e: Exception) -> UserError:
+def corrupt_error(path: Path, t: float | None, e: Exception) -> UserError:
+    """The UserError for a decode failure ``e`` in ``path`` near time ``t`` (s; None: unknown)."""
     where = f" near t={t:.3f} s" if t is not None else ""
     return UserError(
         f"{path.name} is corrupt{where} ({type(e).__name__}: {e})",
@@ -107,7 +109,7 @@ class VideoReader:
         return self.info.width, self.info.height
 
     def _probe(self) -> VideoInfo:
-        c = _open(self.path)
+        c = open_container(self.path)
         try:
             if not c.streams.video:
                 raise UserError(f"{self.path.name} has no video stream", "pass the camera's video file")
@@ -120,7 +122,7 @@ class VideoReader:
                         continue
                     pts.append(pkt.pts)
             except av.error.FFmpegError as e:
-                raise _corrupt(self.path, float(pts[-1] * tb) if pts else None, e) from None
+                raise corrupt_error(self.path, float(pts[-1] * tb) if pts else None, e) from None
             ts = np.sort(np.asarray(pts, np.int64)).astype(np.float64) * float(tb)
             if len(ts) == 0:
                 raise UserError(f"{self.path.name} holds no video frames (empty or truncated)",
@@ -155,7 +157,7 @@ class VideoReader:
     def frames(self, start: float | None = None, end: float | None = None,
                fmt: str = "rgb24") -> Iterator[tuple[float, np.ndarray]]:
         """Yield (t, image_hw3 uint8) for frames with start <= t < end, in time order."""
-        c = _open(self.path)
+        c = open_container(self.path)
         try:
             vs = c.streams.video[0]
             vs.thread_type = "AUTO"
@@ -173,7 +175,7 @@ class VideoReader:
                         break
                     yield t, fr.to_ndarray(format=fmt)
             except av.error.FFmpegError as e:
-                raise _corrupt(self.path, t, e) from None
+                raise corrupt_error(self.path, t, e) from None
         finally:
             c.close()
 
@@ -191,7 +193,7 @@ class VideoReader:
             raise IndexError(f"frame {i} outside 0..{len(ts) - 1}")
         for t, img in self.frames(start=float(ts[i]), fmt=fmt):
             return t, img
-        raise _corrupt(self.path, float(ts[i]), RuntimeError("frame could not be decoded"))
+        raise corrupt_error(self.path, float(ts[i]), RuntimeError("frame could not be decoded"))
 
     def read_indices(self, indices: Sequence[int], fmt: str = "rgb24") -> Iterator[tuple[int, float, np.ndarray]]:
         """Yield (index, t, image) for sorted frame indices, decoding forward once."""
