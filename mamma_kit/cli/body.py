@@ -6,8 +6,8 @@ from pathlib import Path
 
 import typer
 
-from mamma_kit.cli.app import app
 from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
+from mamma_kit.cli.root import app
 
 body_app = typer.Typer(help="Body model: info, mesh export.", no_args_is_help=True)
 app.add_typer(body_app, name="body")

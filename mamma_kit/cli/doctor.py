@@ -9,8 +9,8 @@ import platform
 import typer
 
 from mamma_kit import __version__
-from mamma_kit.cli.app import app
 from mamma_kit.cli.common import JsonOpt, emit_json
+from mamma_kit.cli.root import app
 from mamma_kit.core import log
 from mamma_kit.core.doctor import check as _check
 

@@ -7,8 +7,8 @@ from typing import Optional
 
 import typer
 
-from mamma_kit.cli.app import app
 from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
+from mamma_kit.cli.root import app
 
 
 @app.command("match")

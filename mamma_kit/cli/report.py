@@ -6,8 +6,8 @@ from pathlib import Path
 
 import typer
 
-from mamma_kit.cli.app import app
 from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
+from mamma_kit.cli.root import app
 
 
 @app.command("report")
