@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mamma_kit.core.camera import Camera, Rig, rodrigues
+from mamma_kit.core.tracks import LandmarkTracks
 
 
 class CliResult:
@@ -55,6 +56,33 @@ def make_ring_rig(n: int = 4, radius: float = 4.5, height: float = 1.6, size=(64
         d = np.zeros(5) if dist is None else np.asarray(dist, float)
         cams.append(Camera(f"cam{i}", size, K, d, model, R, -R @ C))
     return Rig(cams)
+
+
+def walking_people(rng, P, T, L=40):
+    """3D points of P people over T frames: (T, P, L, 3), bodies ~1.7 m tall walking apart."""
+    base = rng.uniform(-1.5, 1.5, (P, 2))
+    vel = rng.normal(0, 0.03, (P, 2))
+    body = np.c_[rng.normal(0, 0.15, (L, 2)), rng.uniform(0.0, 1.7, L)]
+    X = np.zeros((T, P, L, 3))
+    for t in range(T):
+        X[t, :, :, :2] = base[:, None] + t * vel[:, None] + body[None, :, :2]
+        X[t, :, :, 2] = body[None, :, 2]
+    return X
+
+
+def landmark_view(cam, X, times, perm=None, noise=0.0, rng=None):
+    """LandmarkTracks of `cam` seeing X (T, P, L, 3): track j is person perm[j], all visible,
+    with Gaussian pixel noise of sd `noise` drawn from `rng`."""
+    T, P, L, _ = X.shape
+    perm = np.arange(P) if perm is None else perm
+    xy = cam.project(X[:, perm])
+    if noise:
+        xy = xy + rng.normal(0, noise, xy.shape)
+    lt = LandmarkTracks.empty(cam.name, cam.size, times, np.arange(P), L)
+    lt.xy[:] = xy
+    lt.visibility[:] = 1.0
+    lt.valid[:] = True
+    return lt
 
 
 @pytest.fixture

@@ -16,14 +16,14 @@ RECTS = {0: (20, 20, 60, 110), 1: (90, 10, 130, 100)}
 LG = 200  # ground-truth landmarks per person (statistics of the noise)
 
 
-def _rect(pid, t):
+def person_rect(pid, t):
     x1, y1, x2, y2 = RECTS[pid]
     return x1 + 3 * t, y1, x2 + 3 * t, y2
 
 
 def _mask(pid, t):
     m = np.zeros((H, W), bool)
-    x1, y1, x2, y2 = _rect(pid, t)
+    x1, y1, x2, y2 = person_rect(pid, t)
     m[y1:y2, x1:x2] = True
     return m
 
@@ -39,7 +39,7 @@ def ws(tmp_path):
         for t in range(T):
             img = np.full((H, W, 3), 60, np.uint8)
             for pid, col in ((0, (220, 80, 40)), (1, (40, 200, 90))):
-                x1, y1, x2, y2 = _rect(pid, t)
+                x1, y1, x2, y2 = person_rect(pid, t)
                 img[y1:y2, x1:x2] = col
             img = np.clip(img + rng.normal(0, 5, img.shape), 0, 255).astype(np.uint8)
             vw.write_frame(img, t=t / 30 + (0.004 if t == 3 else 0.0))  # a little VFR
@@ -55,7 +55,7 @@ def ws(tmp_path):
     gt = LandmarkTracks.empty("cam0", (W, H), times, np.array([0, 1]), LG, "toy", "gt")
     for p in (0, 1):
         for t in range(T):
-            x1, y1, x2, y2 = _rect(p, t)
+            x1, y1, x2, y2 = person_rect(p, t)
             gt.xy[t, p] = np.stack([rng.uniform(x1, x2, LG), rng.uniform(y1, y2, LG)], 1)
     gt.valid[:] = True
     gt.visibility[:] = rng.random((T, 2, LG)) > 0.3

@@ -7,7 +7,7 @@ import pytest
 import torch
 from test_landmarks_cli import ws  # noqa: F401 - the small workspace fixture
 
-from conftest import make_ring_rig
+from conftest import landmark_view, make_ring_rig, walking_people
 from mamma_kit.core.tracks import KeypointTracks, LandmarkTracks
 from mamma_kit.landmarks import crop as C
 from mamma_kit.landmarks.model import build_model, keypoint_frame, keypoint_maps
@@ -105,7 +105,7 @@ def test_keypoint_model_trains_and_its_prior_learns_from_points(tmp_path):
 def test_landmarks_stage_feeds_the_keypoints_and_asks_for_them(ws, tmp_path, cli):
     from mamma_kit.core.tracks import MaskTracks
     from mamma_kit.landmarks.weights import save_weights
-    from test_landmarks_cli import H, T, W, _rect
+    from test_landmarks_cli import H, T, W, person_rect
 
     torch.manual_seed(0)
     save_weights(tmp_path / "kp.pt", build_model("tiny-kp"), "toy")
@@ -115,7 +115,7 @@ def test_landmarks_stage_feeds_the_keypoints_and_asks_for_them(ws, tmp_path, cli
     kt = KeypointTracks.empty("cam0", (W, H), mt.frame_times, mt.track_ids)
     for t in range(T):
         for k, pid in ((0, 1), (1, 0)):
-            x1, y1, x2, y2 = _rect(pid, t)
+            x1, y1, x2, y2 = person_rect(pid, t)
             kt.valid[t, k] = True
             kt.xy[t, k] = np.stack([np.linspace(x1, x2, 33), np.linspace(y1, y2, 33)], 1)
             kt.z[t, k], kt.visibility[t, k], kt.presence[t, k] = 0.0, 0.9, 0.9
@@ -128,19 +128,18 @@ def test_landmarks_stage_feeds_the_keypoints_and_asks_for_them(ws, tmp_path, cli
 def test_match_lets_keypoints_decide_where_landmarks_are_noisy():
     from mamma_kit.matching.match import match_views
     from mamma_kit.matching.pairs import ViewTracks
-    from test_match_units import _people, _view
 
     rng = np.random.default_rng(4)
     rig = make_ring_rig(3)
     T = 12
-    X = _people(rng, 2, T, L=33)
+    X = walking_people(rng, 2, T, L=33)
     times = np.arange(T) / 30
     perms = [np.array([0, 1]), np.array([1, 0]), np.array([0, 1])]
     lm, kp = [], []
     for cam, perm in zip(rig, perms):
-        noisy = _view(cam, X, times, perm, noise=400.0, rng=rng)  # landmarks that follow no limb
+        noisy = landmark_view(cam, X, times, perm, noise=400.0, rng=rng)  # landmarks that follow no limb
         lm.append(ViewTracks.from_landmarks(noisy, cam, times))
-        good = _view(cam, X, times, perm, noise=1.0, rng=rng)
+        good = landmark_view(cam, X, times, perm, noise=1.0, rng=rng)
         kt = KeypointTracks.empty(cam.name, cam.size, times, np.arange(2))
         kt.valid[:], kt.xy[:], kt.visibility[:], kt.presence[:] = True, good.xy, 1.0, 1.0
         kp.append(ViewTracks.from_keypoints(kt, cam, times))

@@ -7,47 +7,21 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import make_ring_rig
+from conftest import landmark_view, make_ring_rig, walking_people
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.identities import Identities, read_identities, write_identities
-from mamma_kit.core.tracks import LandmarkTracks
 from mamma_kit.matching.grouping import Node, group_tracks
 from mamma_kit.matching.match import match_views
 from mamma_kit.matching.pairs import ViewTracks, pair_distances
 
 
-def _people(rng, P, T, L=40):
-    """3D points of P people over T frames: (T, P, L, 3), bodies ~1.7 m tall walking apart."""
-    base = rng.uniform(-1.5, 1.5, (P, 2))
-    vel = rng.normal(0, 0.03, (P, 2))
-    body = np.c_[rng.normal(0, 0.15, (L, 2)), rng.uniform(0.0, 1.7, L)]
-    X = np.zeros((T, P, L, 3))
-    for t in range(T):
-        X[t, :, :, :2] = base[:, None] + t * vel[:, None] + body[None, :, :2]
-        X[t, :, :, 2] = body[None, :, 2]
-    return X
-
-
-def _view(cam, X, times, perm=None, noise=0.0, rng=None):
-    T, P, L, _ = X.shape
-    perm = np.arange(P) if perm is None else perm
-    xy = cam.project(X[:, perm])
-    if noise:
-        xy = xy + rng.normal(0, noise, xy.shape)
-    lt = LandmarkTracks.empty(cam.name, cam.size, times, np.arange(P), L)
-    lt.xy[:] = xy
-    lt.visibility[:] = 1.0
-    lt.valid[:] = True
-    return lt
-
-
 def test_exact_correspondences_have_zero_distance_and_others_do_not():
     rng = np.random.default_rng(0)
     rig = make_ring_rig(3, dist=[0.05, -0.02, 0, 0, 0])
-    X = _people(rng, 3, 10)
+    X = walking_people(rng, 3, 10)
     times = np.arange(10) / 30
-    va = ViewTracks.from_landmarks(_view(rig[0], X, times), rig[0], times)
-    vb = ViewTracks.from_landmarks(_view(rig[1], X, times, perm=np.array([2, 0, 1])), rig[1], times)
+    va = ViewTracks.from_landmarks(landmark_view(rig[0], X, times), rig[0], times)
+    vb = ViewTracks.from_landmarks(landmark_view(rig[1], X, times, perm=np.array([2, 0, 1])), rig[1], times)
     r = pair_distances(va, vb)
     # track i of a is person i; track j of b is person perm[j]
     for i in range(3):
@@ -63,9 +37,9 @@ def test_low_visibility_probabilities_keep_the_more_visible_half():
     keeps its more visible half, and landmarks above the threshold always count."""
     rng = np.random.default_rng(1)
     rig = make_ring_rig(2)
-    X = _people(rng, 2, 6)
+    X = walking_people(rng, 2, 6)
     times = np.arange(6) / 30
-    la, lb = _view(rig[0], X, times), _view(rig[1], X, times, perm=np.array([1, 0]))
+    la, lb = landmark_view(rig[0], X, times), landmark_view(rig[1], X, times, perm=np.array([1, 0]))
     for lt in (la, lb):
         lt.visibility[:] = rng.uniform(0.2, 0.4, lt.visibility.shape)
     va, vb = ViewTracks.from_landmarks(la, rig[0], times), ViewTracks.from_landmarks(lb, rig[1], times)
@@ -82,11 +56,11 @@ def test_distance_is_resolution_independent(scale):
     """Distances in person heights do not change when both images are resized."""
     rng = np.random.default_rng(1)
     rig = make_ring_rig(2)
-    X = _people(rng, 2, 5)
+    X = walking_people(rng, 2, 5)
     times = np.arange(5) / 30.0
-    base = pair_distances(*[ViewTracks.from_landmarks(_view(c, X, times, noise=0.0), c, times) for c in rig])
+    base = pair_distances(*[ViewTracks.from_landmarks(landmark_view(c, X, times, noise=0.0), c, times) for c in rig])
     cams = [c.scaled(scale) for c in rig]
-    scaled = pair_distances(*[ViewTracks.from_landmarks(_view(c, X, times), c, times) for c in cams])
+    scaled = pair_distances(*[ViewTracks.from_landmarks(landmark_view(c, X, times), c, times) for c in cams])
     assert np.allclose(base.distance, scaled.distance, atol=1e-6)
 
 
@@ -97,10 +71,10 @@ def test_unsynchronised_frames_are_interpolated():
     T = 20
     ta = np.arange(T) / 30.0
     tb = ta + 0.5 / 30  # half a frame later
-    X = _people(rng, 2, 2 * T + 2)
+    X = walking_people(rng, 2, 2 * T + 2)
     # motion sampled at 60 Hz: a sees even samples, b odd ones
-    va = ViewTracks.from_landmarks(_view(rig[0], X[0:2 * T:2], ta), rig[0], ta)
-    vb = ViewTracks.from_landmarks(_view(rig[1], X[1:2 * T + 1:2], tb), rig[1], tb)
+    va = ViewTracks.from_landmarks(landmark_view(rig[0], X[0:2 * T:2], ta), rig[0], ta)
+    vb = ViewTracks.from_landmarks(landmark_view(rig[1], X[1:2 * T + 1:2], tb), rig[1], tb)
     r = pair_distances(va, vb)
     assert r.distance[0, 0] < 1e-3 and r.distance[1, 1] < 1e-3
 
@@ -150,12 +124,12 @@ def test_many_views_and_people_scale():
     """16 cameras, 7 people, noisy landmarks, per-view random track ids: all grouped right."""
     rng = np.random.default_rng(3)
     rig = make_ring_rig(16, size=(640, 480))
-    X = _people(rng, 7, 12, L=60)
+    X = walking_people(rng, 7, 12, L=60)
     times = np.arange(12) / 30.0
     views, truth = [], {}
     for c in rig:
         perm = rng.permutation(7)
-        lt = _view(c, X, times, perm=perm, noise=1.0, rng=rng)
+        lt = landmark_view(c, X, times, perm=perm, noise=1.0, rng=rng)
         lt.track_ids = rng.choice(1000, 7, replace=False)
         views.append(ViewTracks.from_landmarks(lt, c, times))
         for k in range(7):
