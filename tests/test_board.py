@@ -14,7 +14,7 @@ from mamma_kit.calibration.board import BoardSpec, load_board_spec, print_board,
 from mamma_kit.calibration.lens import undistort_exact
 from mamma_kit.core.camera import Camera, distort_normalized
 from mamma_kit.core.errors import UserError
-from mamma_kit.synth.board import R_WORLD_FLOOR_BOARD, BoardRenderer, _facing_rotation, plan_session
+from mamma_kit.synth.board import R_WORLD_FLOOR_BOARD, BoardRenderer, facing_rotation, plan_session
 
 from conftest import make_ring_rig
 
@@ -106,7 +106,7 @@ def test_rendered_corners_are_where_the_lens_model_projects_them(fisheye):
     errs = []
     for seed in range(5):
         rng = np.random.default_rng(seed)
-        R = _facing_rotation(np.array([rng.normal(0, 0.25), rng.normal(0, 0.25), -1.0]), up=np.array([0, -1.0, 0]),
+        R = facing_rotation(np.array([rng.normal(0, 0.25), rng.normal(0, 0.25), -1.0]), up=np.array([0, -1.0, 0]),
                              roll=rng.uniform(-np.pi, np.pi))
         # squares of at least ~25 px (smaller ones are limited by the detector, not the renderer)
         z = rng.uniform(0.55, 0.9) * cam.K[0, 0] / 420
@@ -146,7 +146,7 @@ def test_large_frames_are_searched_small_and_refined_at_full_resolution():
     cam = Camera("c", (2160, 1200), [[1530, 0, 1079.5], [0, 1530, 599.5], [0, 0, 1]], [0.05, -0.1, 0, 0, 0])
     ren = BoardRenderer(cam, spec, supersample=2, seed=1)
     rng = np.random.default_rng(4)
-    R = _facing_rotation(np.array([0.3, -0.2, -1.0]), up=np.array([0, -1.0, 0]), roll=0.2)
+    R = facing_rotation(np.array([0.3, -0.2, -1.0]), up=np.array([0, -1.0, 0]), roll=0.2)
     t = np.array([0.2, -0.1, 2.9]) - R @ spec.center_b3
     grey = cv2.cvtColor(ren.render([(R, t)], rng, noise_sigma=2.0), cv2.COLOR_RGB2GRAY)
     finder = BoardFinder(spec, max_detect_width=2000)
@@ -168,7 +168,7 @@ def test_board_seen_from_behind_shows_the_mirror_image_of_its_front(back):
     cam = Camera("c", (480, 360), [[420, 0, 237.2], [0, 421, 182.4], [0, 0, 1]], [-0.2, 0.05, 0.001, -0.001, 0])
     ren = BoardRenderer(cam, spec, supersample=2, seed=3, back=back)
     # the printed face (-z_b) turned away from the camera
-    R = _facing_rotation(np.array([0.2, -0.1, 1.0]), up=np.array([0, -1.0, 0]), roll=0.3)
+    R = facing_rotation(np.array([0.2, -0.1, 1.0]), up=np.array([0, -1.0, 0]), roll=0.3)
     t = np.array([0.0, 0.0, 0.75]) - R @ spec.center_b3
     grey = cv2.cvtColor(ren.render([(R, t)], np.random.default_rng(0), noise_sigma=1.0), cv2.COLOR_RGB2GRAY)
     xy, n_markers, from_behind = BoardFinder(spec).detect_any_side(grey)

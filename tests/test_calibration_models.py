@@ -154,11 +154,11 @@ def test_schur_bundle_adjustment_matches_scipy(fisheye_rig_data):
 
 
 def test_inverted_board_is_found_when_the_spec_says_so():
-    from mamma_kit.synth.board import BoardRenderer, _facing_rotation
+    from mamma_kit.synth.board import BoardRenderer, facing_rotation
 
     spec = BoardSpec(5, 7, 0.04, 0.03, "DICT_4X4_50", inverted=True, name="inv")
     cam = Camera("c", (480, 360), [[420, 0, 240], [0, 420, 180], [0, 0, 1]], [-0.1, 0.02, 0, 0, 0])
-    R = _facing_rotation(np.array([0.2, -0.15, -1.0]), up=np.array([0, -1.0, 0]), roll=0.3)
+    R = facing_rotation(np.array([0.2, -0.15, -1.0]), up=np.array([0, -1.0, 0]), roll=0.3)
     t = np.array([0, 0, 0.45]) - R @ spec.center_b3
     import cv2
 

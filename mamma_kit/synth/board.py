@@ -146,7 +146,7 @@ def corner_visibility(cam: Camera, R_wb: np.ndarray, t_wb: np.ndarray, spec: Boa
     return float(inside.mean())
 
 
-def _facing_rotation(normal_out: np.ndarray, up=np.array([0.0, 0.0, 1.0]), roll: float = 0.0) -> np.ndarray:
+def facing_rotation(normal_out: np.ndarray, up=np.array([0.0, 0.0, 1.0]), roll: float = 0.0) -> np.ndarray:
     """Board-to-world rotation whose printed face looks along ``normal_out`` (= -z_b), held
     upright (board y ~ world down), then rolled about the normal by ``roll`` radians."""
     z_b = -normal_out / np.linalg.norm(normal_out)
@@ -229,7 +229,7 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
             # the printed face turns towards the pair's front cameras and away from those behind
             dirs = [(-1.0 if c.name in behind else 1.0) * (c.center - p) / np.linalg.norm(c.center - p) for c in pair]
             n = np.mean(dirs, 0)
-            R = _tilt(_facing_rotation(n, roll=rng.uniform(-0.4, 0.4)), rng, 0.5 * max_tilt_deg)
+            R = _tilt(facing_rotation(n, roll=rng.uniform(-0.4, 0.4)), rng, 0.5 * max_tilt_deg)
             t = p - R @ spec.center_b3
             ok = [corner_visibility(c, R, t, spec, max_angle_deg=max_view_angle_deg,
                                     side="back" if c.name in behind else "front") > 0.8 for c in pair]
@@ -258,7 +258,7 @@ def plan_session(rig: Rig, spec: BoardSpec, *, seed: int = 0, duration_s: float 
             p = cam.R.T @ (ray_c * depth - cam.t)
             n_out = (cam.center - p) / np.linalg.norm(cam.center - p)
             back = cam.name in behind
-            R = _tilt(_facing_rotation(-n_out if back else n_out, roll=rng.uniform(-0.6, 0.6)), rng,
+            R = _tilt(facing_rotation(-n_out if back else n_out, roll=rng.uniform(-0.6, 0.6)), rng,
                       max_tilt_deg * 1.1)
             t = p - R @ spec.center_b3
             if p[2] < 0.15 or corner_visibility(cam, R, t, spec, max_angle_deg=65,
