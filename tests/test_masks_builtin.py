@@ -231,7 +231,8 @@ def test_rim_pixels_go_to_whoever_covers_most_of_them():
     colours are too alike to measure."""
     import cv2
 
-    from mamma_kit.masks.builtin import Background, BuiltinSettings, _clean, foreground, refine_rim
+    from mamma_kit.masks.builtin import BuiltinSettings
+    from mamma_kit.masks.segment import Background, clean, foreground, refine_rim
 
     s = BuiltinSettings()
     rng = np.random.default_rng(3)
@@ -243,7 +244,7 @@ def test_rim_pixels_go_to_whoever_covers_most_of_them():
         img = cv2.GaussianBlur(sharp, (0, 0), 1.5) + rng.normal(0, 1.5, sharp.shape)
         img = np.clip(img, 0, 255).astype(np.uint8)
         bg = Background(np.broadcast_to(bg_rgb, (H, W, 3)).astype(np.float32), np.full((H, W), 3.0, np.float32))
-        raw = _clean(foreground(img, bg, s), H)
+        raw = clean(foreground(img, bg, s), H)
         refined = refine_rim(raw, img, bg, s)
         if should_change:
             # the blurred rim is in the colour test's mask, not in the refined one
@@ -258,7 +259,7 @@ def test_split_follows_colour_regions_not_single_pixels():
     cue): the cut comes from colour alone. Each person's pixels are mostly their own colour with
     a third in a colour both wear; averaged over a neighbourhood the evidence still splits at the
     true boundary, pixel by pixel it frays."""
-    from mamma_kit.masks.builtin import HIST_BINS, split_component
+    from mamma_kit.masks.segment import HIST_BINS, split_component
 
     rng = np.random.default_rng(5)
     h, w = 120, 80
@@ -284,7 +285,7 @@ def test_split_follows_colour_regions_not_single_pixels():
 def test_large_enclosed_background_stays_open():
     """Hole filling restores clothes the background's colour cut out of a person; a large hole is
     floor seen between two people (or legs) with limbs and shadows around it, and stays open."""
-    from mamma_kit.masks.builtin import enclosed, larger_than
+    from mamma_kit.masks.segment import enclosed, larger_than
 
     m = np.zeros((H, W), bool)
     m[20:140, 40:60] = m[20:140, 120:140] = True  # two people
@@ -301,7 +302,8 @@ def test_a_track_lets_go_of_a_second_person():
     """Two people who start as one blob (touching in the first frame) then walk a few pixels apart
     stay one linked component; the track keeps the one its prediction covers and the other gets
     its own track."""
-    from mamma_kit.masks.builtin import BuiltinSettings, Tracker
+    from mamma_kit.masks.builtin import BuiltinSettings
+    from mamma_kit.masks.tracker import Tracker
 
     tr = Tracker((H, W), BuiltinSettings())
     cidx = np.zeros((H, W), np.int64)
@@ -321,11 +323,12 @@ def test_a_track_lets_go_of_a_second_person():
 
 def _tracker_with(masks: dict, people: int | None = None):
     """A Tracker whose tracks (id -> mask) were all seen, standing still, in frame 0."""
-    from mamma_kit.masks.builtin import BuiltinSettings, Track, Tracker, _centroid
+    from mamma_kit.masks.builtin import BuiltinSettings
+    from mamma_kit.masks.tracker import Track, Tracker, centroid
 
     tr = Tracker((H, W), BuiltinSettings(people=people))
     for k, m in masks.items():
-        tr.tracks[k] = Track(k, m, _centroid(m), last_seen=0, area=float(m.sum()))
+        tr.tracks[k] = Track(k, m, centroid(m), last_seen=0, area=float(m.sum()))
     tr.next_id = max(masks) + 1
     return tr
 
@@ -349,7 +352,7 @@ def test_head_count_makes_room_by_joining_one_persons_top_and_bottom():
     a, _ = _person_mask(70, 150, 100)
     b, _ = _person_mask(101, 145, 90)
     c, c_top = _person_mask(200, 150, 100)
-    from mamma_kit.masks.builtin import components
+    from mamma_kit.masks.segment import components
 
     assert len(components(a | b, 10, 2)) == 1 and len(components(a | b, 10)) == 2  # linked, not touching
     tr = _tracker_with({0: a | b, 1: c_top, 2: c & ~c_top}, people=3)
@@ -364,7 +367,7 @@ def test_head_count_makes_room_by_joining_one_persons_top_and_bottom():
 def test_specks_leave_with_the_person_they_are_next_to():
     """When a track frees a person, the specks too small to be components go with whichever piece
     is nearer: left behind, they would widen the track's box and glue the person back."""
-    from mamma_kit.masks.builtin import Tracker
+    from mamma_kit.masks.tracker import crumbs_of
 
     piece = np.zeros((H, W), bool)
     piece[40:120, 40:70] = True
@@ -373,5 +376,5 @@ def test_specks_leave_with_the_person_they_are_next_to():
     near_piece, near_rest = np.zeros((H, W), bool), np.zeros((H, W), bool)
     near_piece[60:62, 74:76] = True
     near_rest[60:62, 144:146] = True
-    got = Tracker._crumbs_of(piece, piece | rest | near_piece | near_rest, 20)
+    got = crumbs_of(piece, piece | rest | near_piece | near_rest, 20)
     assert np.array_equal(got, near_piece)
