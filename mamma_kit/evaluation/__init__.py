@@ -11,6 +11,9 @@ import importlib
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.workspace import Workspace
 
+# the submodules other packages may import (tests/test_architecture.py holds them to it)
+__all__: list[str] = []
+
 # group name -> module; a module appears here once its stage exists
 GROUPS = {
     "calibration": "mamma_kit.evaluation.calibration",

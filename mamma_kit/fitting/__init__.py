@@ -19,6 +19,9 @@ import numpy as np
 from mamma_kit.fitting.cameras import pick_cameras  # noqa: F401
 from mamma_kit.fitting.stages import FitConfig, Fitter, FitResult  # noqa: F401
 
+# the submodules other packages may import (tests/test_architecture.py holds them to it)
+__all__ = ["cameras", "contact"]
+
 REPORT_NAME = "fit_report.json"
 
 

@@ -3,3 +3,6 @@
 ``estimator.PoseEstimator`` finds people and their 33 points (and a mask) in a frame;
 ``stage.run_keypoints`` writes keypoints/<cam>.npz for every tracked person.
 """
+
+# the submodules other packages may import (tests/test_architecture.py holds them to it)
+__all__ = ["blazepose", "estimator", "runtime", "stage"]
