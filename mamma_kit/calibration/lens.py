@@ -5,7 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from mamma_kit.core.camera import Camera, distort_normalized
+from mamma_kit.core.camera import Camera
+from mamma_kit.core.lens import distort_normalized, undistort_normalized
 
 
 def radtan_equivalent(cam: Camera, grid: int = 40) -> tuple[Camera, float]:
@@ -32,11 +33,13 @@ def radtan_equivalent(cam: Camera, grid: int = 40) -> tuple[Camera, float]:
 
 
 def undistort_exact(cam: Camera, xy_n2: np.ndarray) -> np.ndarray:
-    """Distorted pixels -> undistorted normalised coordinates, to ~1e-12.
+    """Distorted pixels (N, 2) -> undistorted normalised coordinates (N, 2), to ~1e-12.
 
-    OpenCV's iterative undistortion gives the start; Newton steps with a numeric Jacobian
-    on core's own lens model (the one that projects) finish it, so rendering and
-    projection agree exactly."""
+    OpenCV's iterative undistortion gives the start; core's Newton undistortion (on core's
+    own lens model, the one that projects) finishes it, so rendering and projection agree
+    exactly. From that start a step or two converge: at most 4 are taken, since one point
+    that does not converge (beyond a lens's fold) would keep every point of a rendered
+    image iterating. Normalised-coordinate models only (not vicon_radial)."""
     xy = np.asarray(xy_n2, np.float64).reshape(-1, 2)
     xd = cam.pixels_to_normalized(xy)
     if cam.model != "fisheye" and not np.any(cam.dist):  # (a zero fisheye is still equidistant)
@@ -46,17 +49,4 @@ def undistort_exact(cam: Camera, xy_n2: np.ndarray) -> np.ndarray:
         x = cv2.fisheye.undistortPoints(xd.reshape(-1, 1, 2), np.eye(3), cam.dist.reshape(4), criteria=crit)
     else:
         x = cv2.undistortPoints(xd.reshape(-1, 1, 2), np.eye(3), cam.dist, None, None, None, crit)
-    x = x.reshape(-1, 2).astype(np.float64)
-    eps = 1e-7
-    for _ in range(4):
-        f = distort_normalized(x, cam.model, cam.dist) - xd
-        if np.nanmax(np.abs(f), initial=0.0) < 1e-13:  # converged (OpenCV's start often is)
-            break
-        fx = (distort_normalized(x + [eps, 0], cam.model, cam.dist) - xd - f) / eps
-        fy = (distort_normalized(x + [0, eps], cam.model, cam.dist) - xd - f) / eps
-        det = fx[:, 0] * fy[:, 1] - fy[:, 0] * fx[:, 1]
-        det = np.where(np.abs(det) < 1e-12, 1e-12, det)
-        dx = (fy[:, 1] * f[:, 0] - fy[:, 0] * f[:, 1]) / det
-        dy = (-fx[:, 1] * f[:, 0] + fx[:, 0] * f[:, 1]) / det
-        x = x - np.stack([dx, dy], -1)
-    return x
+    return undistort_normalized(xd, cam.model, cam.dist, iters=4, start_n2=x.reshape(-1, 2).astype(np.float64))

@@ -9,8 +9,8 @@
     [cameras.cam0]
     size = [1920, 1080]                       # width, height (px)
     K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]
-    distortion_model = "radtan"               # radtan | rational | fisheye | vicon_radial
-    distortion = [k1, k2, p1, p2, k3]
+    distortion_model = "radtan"               # a model of core/lens.py's LENSES: radtan | rational |
+    distortion = [k1, k2, p1, p2, k3]         #   fisheye | vicon_radial; its coefficients in the table's order
     rvec = [rx, ry, rz]                       # world -> camera rotation vector (or R = 3x3)
     t = [tx, ty, tz]                          # metres, x_cam = R x_world + t
     [cameras.cam0.diagnostics]                # per-camera rms_px, std-devs, ...

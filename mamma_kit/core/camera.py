@@ -1,16 +1,11 @@
 """Cameras and rigs: OpenCV conventions, vectorised numpy.
 
 Conventions (shared/DESIGN.md): x_cam = R @ x_world + t, camera frame x right, y down,
-z forward; pixel (0, 0) is the centre of the top-left pixel. Lens models follow OpenCV:
-
-- ``radtan``   : k1, k2, p1, p2[, k3]                  (cv2.projectPoints, 4 or 5 coeffs)
-- ``rational`` : k1, k2, p1, p2, k3, k4, k5, k6[, s1..s4] (8 or 12 coeffs)
-- ``fisheye``  : k1, k2, k3, k4                         (cv2.fisheye, equidistant)
-- ``vicon_radial`` : pp_x, pp_y, rad_1, rad_2, rad_3 (pixels; Vicon's VICON_RADIAL2, the
-  MAMMA release's ``vicon_radial_2``): a pinhole-projected pixel u (through K) is recorded
-  at pp + (u - pp)(1 + rad_1 d^2 + rad_2 d^4 + rad_3 d^6), d^2 = |u - pp|^2 in pixels. It
-  acts on pixels, not on normalised coordinates, so only Camera's methods (project,
-  unproject, undistort_pixels) apply it; :func:`distort_normalized` refuses it.
+z forward; pixel (0, 0) is the centre of the top-left pixel. Lens models (radtan, rational,
+fisheye, vicon_radial), their coefficient counts and names are core/lens.py's table
+``LENSES``; the lens functions live there too and are re-exported here for Camera's users.
+:func:`project_points` is the reference projection: Camera.project is it, and the bundle's
+and the fit's fast paths are tested against it (tests/test_projection_paths.py).
 
 Arrays are named by what they hold and their shape: ``X_n3`` world points,
 ``xy_n2`` pixels, ``K_33`` intrinsics.
@@ -24,9 +19,18 @@ from typing import Iterable, Iterator, Sequence
 import numpy as np
 
 from mamma_kit.core.errors import UserError
-
-LENS_MODELS = {"radtan": (0, 4, 5), "rational": (8, 12), "fisheye": (4,), "vicon_radial": (5,)}
-PIXEL_LENS_MODELS = ("vicon_radial",)  # lens models defined on pixels (need K), not normalised coordinates
+from mamma_kit.core.lens import (  # noqa: F401  (re-exported: Camera's users import them from here)
+    LENSES,
+    PIXEL_LENS_MODELS,
+    distort_normalized,
+    lens_to_pixels,
+    normalized_to_pixels,
+    pixels_to_lens,
+    pixels_to_normalized,
+    undistort_normalized,
+    vicon_distort_pixels,
+    vicon_undistort_pixels,
+)
 
 
 def rodrigues(rvec_3: np.ndarray) -> np.ndarray:
@@ -58,95 +62,17 @@ def nearest_rotation(M_33: np.ndarray) -> np.ndarray:
     return R
 
 
-def distort_normalized(xy_n2: np.ndarray, model: str, dist: np.ndarray) -> np.ndarray:
-    """Apply a lens model to normalised image coordinates (x/z, y/z)."""
-    if model in PIXEL_LENS_MODELS:
-        raise ValueError(f"the {model} lens model acts on pixels: use Camera.project / Camera.unproject")
-    xy = np.asarray(xy_n2, float)
-    x, y = xy[..., 0], xy[..., 1]
-    d = np.zeros(12)
-    d[: len(dist)] = dist
-    if model == "fisheye":
-        k1, k2, k3, k4 = d[:4]
-        r = np.sqrt(x * x + y * y)
-        theta = np.arctan(r)
-        t2 = theta * theta
-        theta_d = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
-        # theta_d / r -> 1 as r -> 0
-        scale = np.where(r > 1e-12, theta_d / np.where(r > 1e-12, r, 1.0), 1.0)
-        return np.stack([x * scale, y * scale], -1)
-    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d
-    r2 = x * x + y * y
-    r4 = r2 * r2
-    r6 = r4 * r2
-    radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r4
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r4
-    return np.stack([xd, yd], -1)
-
-
-def undistort_normalized(xyd_n2: np.ndarray, model: str, dist: np.ndarray, iters: int = 30) -> np.ndarray:
-    """Invert :func:`distort_normalized` by Gauss-Newton with a numeric 2x2 Jacobian.
-
-    Vectorised over points; converges to ~1e-14 for the distortion of real lenses.
-    """
-    xyd = np.asarray(xyd_n2, float)
-    if not np.any(dist):
-        return xyd.copy()
-    xy = xyd.copy()
-    eps = 1e-7
-    for it in range(iters):
-        f = distort_normalized(xy, model, dist) - xyd
-        # 1e-14 in normalised units is ~1e-11 px: far below anything that matters
-        if np.nanmax(np.abs(f), initial=0.0) < 1e-14:
-            break
-        fx = (distort_normalized(xy + [eps, 0], model, dist) - xyd - f) / eps
-        fy = (distort_normalized(xy + [0, eps], model, dist) - xyd - f) / eps
-        a, c = fx[..., 0], fx[..., 1]
-        b, dd = fy[..., 0], fy[..., 1]
-        det = a * dd - b * c
-        det = np.where(np.abs(det) < 1e-12, 1e-12, det)
-        dx = (dd * f[..., 0] - b * f[..., 1]) / det
-        dy = (-c * f[..., 0] + a * f[..., 1]) / det
-        step = np.stack([dx, dy], -1)
-        # damp huge steps far outside the valid lens region
-        norm = np.linalg.norm(step, axis=-1, keepdims=True)
-        step = np.where(norm > 0.5, step * (0.5 / np.maximum(norm, 1e-12)), step)
-        xy = xy - step
-    return xy
-
-
-def vicon_distort_pixels(u_n2: np.ndarray, coeffs_5: np.ndarray) -> np.ndarray:
-    """Pinhole pixels (..., 2) -> recorded pixels under Vicon's radial model
-    [pp_x, pp_y, rad_1, rad_2, rad_3]."""
-    c = np.asarray(coeffs_5, float)
-    d = np.asarray(u_n2, float) - c[:2]
-    r2 = np.sum(d * d, -1, keepdims=True)
-    return c[:2] + d * (1 + r2 * (c[2] + r2 * (c[3] + r2 * c[4])))
-
-
-def vicon_undistort_pixels(v_n2: np.ndarray, coeffs_5: np.ndarray, iters: int = 50) -> np.ndarray:
-    """Recorded pixels (..., 2) -> pinhole pixels: the radius r with r (1 + rad_1 r^2 +
-    rad_2 r^4 + rad_3 r^6) = |v - pp| by Newton's method (to ~1e-12 px), along v - pp;
-    NaN where no radius on the lens's monotonic part gives |v - pp|."""
-    c = np.asarray(coeffs_5, float)
-    d = np.asarray(v_n2, float) - c[:2]
-    rv = np.linalg.norm(d, axis=-1)
-    k1, k2, k3 = c[2:]
-    r = rv.copy()
-    for _ in range(iters):
-        r2 = r * r
-        f = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) - rv
-        if np.nanmax(np.abs(f), initial=0.0) < 1e-12:
-            break
-        df = 1 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2))
-        r = r - f / np.where(np.abs(df) < 1e-12, 1e-12, df)
-    r2 = r * r
-    # beyond the lens's fold (where the radial map stops growing) no pinhole pixel maps here
-    bad = np.abs(r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) - rv) > 1e-6
-    bad |= 1 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2)) <= 0
-    scale = np.where(rv > 1e-15, r / np.where(rv > 1e-15, rv, 1.0), 1.0)
-    return np.where(bad[..., None], np.nan, c[:2] + d * scale[..., None])
+def project_points(R_33: np.ndarray, t_3: np.ndarray, K_33: np.ndarray, dist: np.ndarray, model: str,
+                   X_n3: np.ndarray) -> np.ndarray:
+    """World points (..., 3) -> recorded pixels (..., 2) of the camera x_cam = R X + t with
+    intrinsics K and lens ``model`` / ``dist``: the reference projection. NaN for points at
+    or behind the camera plane (z <= 1e-9)."""
+    Xc = np.asarray(X_n3, float) @ np.asarray(R_33, float).T + np.asarray(t_3, float)
+    z = Xc[..., 2:3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = Xc[..., :2] / z
+    xy = np.where(z > 1e-9, xy, np.nan)
+    return lens_to_pixels(xy, K_33, dist, model)
 
 
 @dataclass
@@ -177,15 +103,15 @@ class Camera:
         self.t = np.asarray(self.t, float).reshape(3)
         if self.model == "pinhole":
             self.model = "radtan"
-        if self.model not in LENS_MODELS:
+        if self.model not in LENSES:
             raise UserError(
                 f"camera {self.name}: unknown lens model '{self.model}'",
-                f"use one of {', '.join(LENS_MODELS)}",
+                f"use one of {', '.join(LENSES)}",
             )
-        if len(self.dist) not in LENS_MODELS[self.model]:
+        if len(self.dist) not in LENSES[self.model].n_coeffs:
             raise UserError(
                 f"camera {self.name}: lens model {self.model} takes "
-                f"{' or '.join(map(str, LENS_MODELS[self.model]))} coefficients, got {len(self.dist)}",
+                f"{' or '.join(map(str, LENSES[self.model].n_coeffs))} coefficients, got {len(self.dist)}",
                 "check the distortion coefficients",
             )
 
@@ -233,43 +159,26 @@ class Camera:
         return X @ self.R.T + self.t
 
     def project(self, X_n3: np.ndarray) -> np.ndarray:
-        """World points (..., 3) -> distorted pixels (..., 2).
+        """World points (..., 3) -> distorted pixels (..., 2) (:func:`project_points`).
 
         Points behind the camera (z <= 0) give NaN.
         """
-        Xc = self.to_camera(X_n3)
-        z = Xc[..., 2:3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xy = Xc[..., :2] / z
-        xy = np.where(z > 1e-9, xy, np.nan)
-        return self.lens_to_pixels(xy)
+        return project_points(self.R, self.t, self.K, self.dist, self.model, X_n3)
 
     def lens_to_pixels(self, xy_n2: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates (x/z, y/z) -> recorded (distorted) pixels."""
-        if self.model == "vicon_radial":
-            return vicon_distort_pixels(self.normalized_to_pixels(xy_n2), self.dist)
-        return self.normalized_to_pixels(distort_normalized(xy_n2, self.model, self.dist))
+        return lens_to_pixels(xy_n2, self.K, self.dist, self.model)
 
     def pixels_to_lens(self, xy_n2: np.ndarray) -> np.ndarray:
         """Recorded pixels -> undistorted normalised coordinates (inverse of lens_to_pixels)."""
-        if self.model == "vicon_radial":
-            return self.pixels_to_normalized(vicon_undistort_pixels(xy_n2, self.dist))
-        return undistort_normalized(self.pixels_to_normalized(xy_n2), self.model, self.dist)
+        return pixels_to_lens(xy_n2, self.K, self.dist, self.model)
 
     def normalized_to_pixels(self, xy_n2: np.ndarray) -> np.ndarray:
-        K = self.K
-        x, y = xy_n2[..., 0], xy_n2[..., 1]
-        u = K[0, 0] * x + K[0, 1] * y + K[0, 2]
-        v = K[1, 1] * y + K[1, 2]
-        return np.stack([u, v], -1)
+        return normalized_to_pixels(xy_n2, self.K)
 
     def pixels_to_normalized(self, xy_n2: np.ndarray) -> np.ndarray:
         """Distorted pixels -> distorted normalised coordinates (inverse of K only)."""
-        K = self.K
-        xy = np.asarray(xy_n2, float)
-        y = (xy[..., 1] - K[1, 2]) / K[1, 1]
-        x = (xy[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-        return np.stack([x, y], -1)
+        return pixels_to_normalized(xy_n2, self.K)
 
     def undistort_pixels(self, xy_n2: np.ndarray) -> np.ndarray:
         """Distorted pixels -> pixels of the ideal pinhole camera with the same K."""
