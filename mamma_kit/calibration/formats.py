@@ -57,15 +57,16 @@ import yaml
 from mamma_kit.core.calibfile import read_calibration, write_calibration
 from mamma_kit.core.camera import Camera, Rig, nearest_rotation, rodrigues, rotvec
 from mamma_kit.core.errors import UserError
+from mamma_kit.core.lens import LENSES
 from mamma_kit.core.io import atomic_path, atomic_write_text, to_json, write_toml
 
 # formats read and written (every pair round-trips); READ_FORMATS adds those only read
 FORMATS = ("mamma-kit", "mamma-yaml", "easymocap", "anipose", "caliscope", "opencv-json", "vicon-xcp")
 READ_ONLY_FORMATS = ("qualisys",)
 READ_FORMATS = FORMATS + READ_ONLY_FORMATS
-# lens models each format can hold
+# lens models each format can hold (names from core/lens.py's LENSES; mamma-kit's own holds all)
 SUPPORTED_MODELS = {
-    "mamma-kit": {"radtan", "rational", "fisheye", "vicon_radial"},
+    "mamma-kit": set(LENSES),
     "opencv-json": {"radtan", "rational", "fisheye"},
     "anipose": {"radtan", "rational", "fisheye"},
     "easymocap": {"radtan", "rational"},

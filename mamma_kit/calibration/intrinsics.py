@@ -16,12 +16,12 @@ import numpy as np
 from mamma_kit.calibration.board import BoardSpec
 from mamma_kit.calibration.detect import Detections
 from mamma_kit.calibration.lens import undistort_exact
-from mamma_kit.core.camera import Camera, distort_normalized, rodrigues
+from mamma_kit.core.camera import Camera, rodrigues
 from mamma_kit.core.errors import UserError
+from mamma_kit.core.lens import LENSES, coefficient_names, distort_normalized, require_solvable
 from mamma_kit.core import log
 
-N_DIST = {"radtan": 5, "rational": 8, "fisheye": 4}
-STD_NAMES = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"]
+K_NAMES = ["fx", "fy", "cx", "cy"]  # the intrinsics before the lens coefficients, in OpenCV's order
 
 
 @dataclass
@@ -122,9 +122,10 @@ def _calibrate(model: str, obj: list[np.ndarray], img: list[np.ndarray], size: t
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     rms, K, D, rv, tv, std_i, _std_e, errs = cv2.calibrateCameraExtended(o, i, (w, h), K, D, flags=flags,
                                                                         criteria=crit)
-    nd = N_DIST[model]
+    nd = LENSES[model].solve_coeffs
     std_i = std_i.ravel()
-    std = {n: float(v) for n, v in zip(STD_NAMES[:4 + nd], std_i[:4 + nd])}
+    # OpenCV's stdDeviationsIntrinsics: fx, fy, cx, cy, then the coefficients in the table's order
+    std = {n: float(v) for n, v in zip(K_NAMES + coefficient_names(model, nd), std_i[:4 + nd])}
     return rms, K, D.ravel()[:nd], np.array([np.ravel(r) for r in rv]), np.array([np.ravel(t) for t in tv]), \
         std, np.asarray(errs).ravel()
 
@@ -262,8 +263,7 @@ def calibrate_camera(det: Detections, spec: BoardSpec, model: str = "radtan", ma
                      fixed: Camera | None = None, min_views: int = 4, frames: np.ndarray | None = None
                      ) -> IntrinsicResult:
     """Intrinsics of one camera from its board detections (or ``fixed`` ones, only posed)."""
-    if model not in N_DIST:
-        raise UserError(f"unknown lens model '{model}'", "use --model radtan, rational or fisheye")
+    require_solvable(model)
     usable = det.usable(spec) if frames is None else np.asarray(frames)
     name = det.camera
     if len(usable) < min_views:
@@ -404,7 +404,7 @@ def intrinsic_std(cam: Camera, spec: BoardSpec, obj: list, img: list, rv, tv) ->
     dof = max(1, m - n - 6 * len(obj))
     cov = np.linalg.pinv(H) * (sse / dof)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    names = ["fx", "fy", "cx", "cy"] + ["k1", "k2", "k3", "k4"][:nd]
+    names = K_NAMES + coefficient_names(cam.model, nd)
     return {k: float(v) for k, v in zip(names, sd)}
 
 

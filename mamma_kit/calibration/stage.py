@@ -15,14 +15,12 @@ from mamma_kit.calibration.solve import Settings, calibrate, summary, write_outp
 from mamma_kit.core import log
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
+from mamma_kit.core.lens import require_solvable
 from mamma_kit.core.manifest import FileHasher, StageManifest, producer
-
-LENS_MODELS = ("radtan", "rational", "fisheye")
 
 
 def settings_from(model: str = "radtan", detect_fps: float = 10.0, max_views: int = 40, floor: bool = True) -> Settings:
-    if model not in LENS_MODELS:
-        raise UserError(f"unknown lens model '{model}'", "use --model radtan, rational or fisheye")
+    require_solvable(model)
     return Settings(model=model, max_fps=detect_fps, max_views=max_views, floor=floor)
 
 

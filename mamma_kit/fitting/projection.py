@@ -1,12 +1,21 @@
-"""Camera projection in torch for the fit: the same lens models as core.camera (OpenCV
-radtan / rational / fisheye), batched over cameras, with the 2x3 Jacobian d pixel / d world
-point for Gauss-Newton.
+"""Camera projection in torch for the fit: the lens models of core/lens.py's table marked
+``fit`` (OpenCV radtan / rational / fisheye), batched over cameras, with the 2x3 Jacobian
+d pixel / d world point for Gauss-Newton.
 
 ``RigTensors.project(X_c_n3)`` takes points per camera (C, ..., 3) and returns pixels
-(C, ..., 2) and a validity mask (points in front of the camera); it is differentiable for
-the L-BFGS stages. ``project_jacobian`` returns the pixels and the Jacobian without autograd:
-the lens part by central differences in normalised coordinates (float64), the rest in
-closed form.
+(C, ..., 2) and a validity mask (points in front of the camera); it is what the fit's
+energies evaluate (fitting/gauss_newton.py's Levenberg-Marquardt accepts or rejects a step
+on it) and stays differentiable by autograd. ``project_jacobian`` returns the pixels and the
+Jacobian without autograd, in closed form (the lens part too), for the normal equations.
+
+This is a fast path beside core's reference projection (core.camera.project_points), not a
+shared implementation: it runs in torch on every camera at once with per-camera coefficient
+tensors, which core's numpy lens functions cannot do. tests/test_projection_paths.py checks
+that its pixels agree with Camera.project within 1e-9 px for every lens model it implements,
+and its Jacobian with autograd and with finite differences of Camera.project.
+``vicon_radial`` is not implemented here: it acts on pixels about its own centre, not on the
+normalised coordinates this path distorts, and a Vicon calibration converts to the closest
+radtan lens with a report of what moves (from_rig's error says how).
 """
 
 from __future__ import annotations
@@ -17,18 +26,17 @@ import numpy as np
 import torch
 
 from mamma_kit.core.camera import Rig
+from mamma_kit.core.lens import FIT_MODELS, LENSES
 
 MIN_DEPTH = 1e-3  # m: points closer to (or behind) the camera plane do not project
-
-
-# the lens models this torch projection implements (core.camera has more, e.g. vicon_radial)
-FIT_MODELS = ("radtan", "rational", "fisheye")
+N_SLOTS = max(max(LENSES[m].n_coeffs) for m in FIT_MODELS)  # 12: rational's k1..k6, p1, p2, s1..s4
 
 
 @dataclass
 class RigTensors:
-    """C cameras as tensors: R (C, 3, 3), t (C, 3), K (C, 3, 3), dist (C, 12) zero-padded,
-    fisheye (C,) bool, size (C, 2) [w, h]; names in rig order."""
+    """C cameras as tensors: R (C, 3, 3), t (C, 3), K (C, 3, 3), dist (C, 12) zero-padded
+    (each camera's coefficients in the table's order), fisheye (C,) bool, size (C, 2) [w, h];
+    names in rig order."""
 
     names: list[str]
     R: torch.Tensor
@@ -48,7 +56,7 @@ class RigTensors:
                             "convert the calibration with `mamma-kit calib convert IN OUT --to opencv-json` (it fits "
                             "the closest radtan lens and says how far projections move), then fit again")
         C = len(rig)
-        dist = np.zeros((C, 12))
+        dist = np.zeros((C, N_SLOTS))
         for i, c in enumerate(rig):
             dist[i, :len(c.dist)] = c.dist
         t = lambda a: torch.as_tensor(np.asarray(a, float), dtype=dtype)  # noqa: E731
