@@ -138,8 +138,8 @@ def _rel_pose(ra: Run, rb: Run) -> tuple[np.ndarray, np.ndarray]:
     return R, ta - R @ tb
 
 
-def _consistent(rels: list[tuple[np.ndarray, np.ndarray]], ang_tol: float = np.radians(3.0),
-                rel_tol: float = 0.06) -> list[int]:
+def consistent_poses(rels: list[tuple[np.ndarray, np.ndarray]], ang_tol: float = np.radians(3.0),
+                     rel_tol: float = 0.06) -> list[int]:
     """Largest subset of relative poses that agree with one of them (RANSAC-like)."""
     best: list[int] = []
     for i, (Ri, ti) in enumerate(rels):
@@ -192,7 +192,7 @@ def pair_offset(runs_a: list[Run], runs_b: list[Run], max_offset_s: float | None
         if len(pa) < 2 or (best is not None and len(pa) <= best[1]):
             continue
         rels = [_rel_pose(A[i], B[j]) for i, j in zip(pa, pb)]
-        members = _consistent(rels)
+        members = consistent_poses(rels)
         if best is None or len(members) > best[1]:
             best = (d, len(members), [(pa[m], pb[m]) for m in members])
     if best is None or best[1] < 2:

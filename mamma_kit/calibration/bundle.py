@@ -3,9 +3,11 @@
 Unknowns: per camera the intrinsics (fx, fy, cx, cy, distortion; optionally fixed) and the
 pose in the frame of a reference camera (fixed: the gauge); per event the board pose. The
 board's known geometry fixes the metric scale. Residuals are the reprojection errors of
-every observed corner; scipy's least_squares minimises them with a robust loss and a
-sparse Jacobian (finite differences over the known block structure), then corners whose
-error exceeds five robust sigmas are dropped and the problem is solved again.
+every observed corner, projected by core's lens functions (see _Problem); Levenberg-Marquardt
+with the board poses eliminated by the Schur complement minimises them under a robust
+(soft-L1) loss, with block Jacobians by finite differences (scipy's least_squares is kept
+for comparison: ``solver="scipy"``), then corners whose error exceeds five robust sigmas are
+dropped and the problem is solved again.
 """
 
 from __future__ import annotations
@@ -16,10 +18,11 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from mamma_kit.calibration.association import Event, components
+from mamma_kit.calibration.association import Event, components, consistent_poses
 from mamma_kit.calibration.board import BoardSpec
 from mamma_kit.calibration.intrinsics import board_pose
-from mamma_kit.core.camera import Camera, distort_normalized, nearest_rotation, rodrigues
+from mamma_kit.core.camera import Camera, nearest_rotation, rodrigues
+from mamma_kit.core.lens import coefficient_names, lens_to_pixels
 from mamma_kit.core.errors import UserError
 
 
@@ -41,9 +44,7 @@ def event_poses(cams: dict[str, Camera], spec: BoardSpec, events: list[Event]) -
 
 
 def _robust_mean_pose(rels: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, int]:
-    from mamma_kit.calibration.association import _consistent
-
-    members = _consistent(rels, np.radians(2.0), 0.03) if len(rels) > 2 else list(range(len(rels)))
+    members = consistent_poses(rels, np.radians(2.0), 0.03) if len(rels) > 2 else list(range(len(rels)))
     Rs = np.stack([rels[m][0] for m in members])
     ts = np.stack([rels[m][1] for m in members])
     return nearest_rotation(Rs.sum(0)), np.median(ts, 0), len(members)
@@ -124,6 +125,22 @@ class BundleResult:
 
 
 class _Problem:
+    """The bundle's parameter vector and its vectorised projection of every observed corner.
+
+    The projection is split in two for the finite-difference Jacobians (the intrinsics'
+    columns reuse the normalised points): :meth:`normalized` (rig frame -> camera ->
+    pinhole) and :meth:`pixels` (core's ``lens_to_pixels``, the lens function Camera.project
+    uses, with K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]: the bundle solves no skew, and the
+    cameras it returns have none). Two deliberate differences from Camera.project: a point at
+    or behind a camera plane projects as if at depth 1e-9 instead of NaN (every trial step of
+    Levenberg-Marquardt needs finite residuals; no such point survives at a solution), and the
+    lens model is the first camera's for all (calibrate solves one model per rig).
+    tests/test_projection_paths.py checks it against Camera.project for every lens model.
+    ``vicon_radial`` projects too, but calibrate refuses it before it gets here (solve.py):
+    its coefficients are in pixel units, where the fixed 1e-7 finite-difference steps do not
+    suit them.
+    """
+
     def __init__(self, cams: list[Camera], fix_intr: list[bool], ref: int, spec: BoardSpec, events: list[Event],
                  names: list[str]):
         self.cams = cams
@@ -212,15 +229,16 @@ class _Problem:
         return xn
 
     def pixels(self, intr: np.ndarray, xn: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """Recorded pixels (m, 2) of undistorted normalised points ``xn`` (m, 2) of the
+        observations ``idx``, under the intrinsics rows ``intr`` (C, 4 + nd)."""
         oc = self.obs_cam[idx]
         out = np.empty_like(xn)
         for c in range(len(self.cams)):
             m = oc == c
             if m.any():
                 p = intr[c]
-                xd = distort_normalized(xn[m], self.model, p[4:])
-                out[m, 0] = p[0] * xd[:, 0] + p[2]
-                out[m, 1] = p[1] * xd[:, 1] + p[3]
+                K = np.array([[p[0], 0.0, p[2]], [0.0, p[1], p[3]], [0.0, 0.0, 1.0]])
+                out[m] = lens_to_pixels(xn[m], K, p[4:], self.model)
         return out
 
     def project(self, x: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
@@ -493,8 +511,7 @@ def _covariance_std(prob: "_Problem", x: np.ndarray, names: list[str]) -> dict:
         return {}
     C, pc = free.shape
     ni = prob.n_intr
-    dn = {"radtan": ["k1", "k2", "p1", "p2", "k3"], "rational": ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"],
-          "fisheye": ["k1", "k2", "k3", "k4"]}[prob.model][:prob.nd]
+    dn = coefficient_names(prob.model, prob.nd)
     out = {}
     for c, name in enumerate(names):
         d = {}
