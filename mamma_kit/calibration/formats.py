@@ -418,11 +418,16 @@ def _qca_values(cam_el, tag: str, keys: tuple[str, ...], cam: str, path: Path,
     return out
 
 
-def read_qualisys(path: Path) -> Rig:
+def _xml_root(path: Path, what: str) -> ET.Element:
+    """The root element of an XML calibration file; a UserError naming ``what`` it should be."""
     try:
-        root = ET.parse(path).getroot()
+        return ET.parse(path).getroot()
     except ET.ParseError as e:
-        raise UserError(f"{path.name} is not valid XML ({e})", "is this a Qualisys .qca.txt calibration?") from None
+        raise UserError(f"{path.name} is not valid XML ({e})", f"is this a {what} calibration?") from None
+
+
+def read_qualisys(path: Path) -> Rig:
+    root = _xml_root(path, "Qualisys .qca.txt")
     cams = root.findall("./cameras/camera") if root.tag == "calibration" else []
     if not cams:
         raise UserError(f"{path.name} has no <calibration><cameras><camera> elements",
@@ -495,10 +500,7 @@ def _is_number(tok: str) -> bool:
 
 
 def read_xcp(path: Path) -> Rig:
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as e:
-        raise UserError(f"{path.name} is not valid XML ({e})", "is this a Vicon .xcp calibration?") from None
+    root = _xml_root(path, "Vicon .xcp")
     cams = root.findall("Camera") if root.tag == "Cameras" else root.findall(".//Cameras/Camera")
     if not cams:
         raise UserError(f"{path.name} has no <Cameras><Camera> elements", "is this a Vicon .xcp calibration?")

@@ -85,13 +85,16 @@ class RigTensors:
         R, t = self._bc(self.R.to(X.dtype), nd), self._bc(self.t.to(X.dtype), nd)
         return (R @ X.unsqueeze(-1)).squeeze(-1) + t
 
+    def _lens_terms(self, xn: torch.Tensor):
+        """nd (point dims), x, y, r2 (C, ...) of normalised points (C, ..., 2) and the 12
+        coefficient slots, each (C, 1, ..., 1) to broadcast over the points."""
+        nd = xn.ndim - 2
+        x, y = xn[..., 0], xn[..., 1]
+        return nd, x, y, x * x + y * y, self._bc(self.dist.to(xn.dtype), nd).unbind(-1)
+
     def distort(self, xn: torch.Tensor) -> torch.Tensor:
         """Normalised (C, ..., 2) -> distorted normalised (C, ..., 2)."""
-        nd = xn.ndim - 2
-        d = self._bc(self.dist.to(xn.dtype), nd)
-        x, y = xn[..., 0], xn[..., 1]
-        r2 = x * x + y * y
-        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d.unbind(-1)
+        nd, x, y, r2, (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4) = self._lens_terms(xn)
         radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
         xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r2 * r2
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r2 * r2
@@ -126,11 +129,7 @@ class RigTensors:
 
     def distort_jacobian(self, xn: torch.Tensor) -> torch.Tensor:
         """d distorted / d normalised (C, ..., 2, 2), closed form for every lens model."""
-        nd = xn.ndim - 2
-        d = self._bc(self.dist.to(xn.dtype), nd)
-        x, y = xn[..., 0], xn[..., 1]
-        r2 = x * x + y * y
-        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d.unbind(-1)
+        nd, x, y, r2, (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4) = self._lens_terms(xn)
         a = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
         b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
         da = k1 + r2 * (2 * k2 + 3 * k3 * r2)
