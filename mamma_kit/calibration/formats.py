@@ -246,7 +246,7 @@ def read_easymocap(path: Path) -> Rig:
             H = fi.getNode(f"H_{n}").real()
             W = fi.getNode(f"W_{n}").real()
             size = (int(W), int(H)) if W and H else (int(round(2 * K[0, 2] + 1)), int(round(2 * K[1, 2] + 1)))
-            model = "rational" if len(dist) in (8, 12) else "radtan"
+            model = "rational" if len(dist) in LENSES["rational"].n_coeffs else "radtan"
             out.append(Camera(n, size, K, dist, model, nearest_rotation(Rn), T.reshape(3),
                               meta={} if (W and H) else {"size_guessed": True}))
         return Rig(out)
@@ -298,7 +298,7 @@ def read_anipose(path: Path) -> Rig:
         K = _num(_need(d, "matrix", name, path), (3, 3), name, "matrix", path)
         dist = _num(d.get("distortions", [0] * 5), None, name, "distortions", path)
         fisheye = bool(d.get("fisheye", False))
-        model = "fisheye" if fisheye else ("rational" if len(dist) in (8, 12) else "radtan")
+        model = "fisheye" if fisheye else ("rational" if len(dist) in LENSES["rational"].n_coeffs else "radtan")
         R = rodrigues(_num(_need(d, "rotation", name, path), (3,), name, "rotation", path))
         t = _num(_need(d, "translation", name, path), (3,), name, "translation", path)
         w, h = _num(_need(d, "size", name, path), (2,), name, "size", path)
