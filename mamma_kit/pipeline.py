@@ -185,7 +185,7 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
                             opts.get("body_model"), cfg, command="mamma-kit capture-to-smplx", force=force,
                             threads=opts.get("threads"))
     elif stage == "report":
-        from mamma_kit.report import run_report
+        from mamma_kit.report.stage import run_report
 
         res = run_report(ws, video=bool(opts.get("video", True)), force=force, progress=progress)
     else:  # pragma: no cover - stage_range guards this

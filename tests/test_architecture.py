@@ -297,7 +297,7 @@ def private_uses(mod: str) -> list[str]:
     for node in _nodes(mod):
         if isinstance(node, ast.Attribute):
             chain = _dotted(node)
-            # only the outermost attribute of a chain, so `m._a._b` is reported once
+            # a chain is reported once, at its first private step (`m._a` of `m._a._b`)
             if chain and chain[0] in bound and any(_is_private(p) for p in chain[1:]):
                 parent_chain = _dotted(node.value)
                 if parent_chain is None or not any(_is_private(p) for p in parent_chain[1:]):

@@ -23,7 +23,7 @@ def report_cmd(
     ground-truth metrics in one HTML file with every picture and the video embedded."""
     from mamma_kit.core import log
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.report import build_report
+    from mamma_kit.report.build import build_report
 
     setup(quiet, json_out)
     summary = build_report(Workspace(workspace), video=not no_video, rerun=rerun, progress=not quiet)
