@@ -172,8 +172,10 @@ def test_undistortions_invert_the_lens(model, n, seed):
     xy = rng.uniform([0, 0], [639, 479], (400, 2))
     xn = cam.pixels_to_lens(xy)
     assert np.abs(cam.lens_to_pixels(xn) - xy).max() < TOL_PX
-    if model in PIXEL_LENS_MODELS:
-        return  # undistort_exact is for the normalised-coordinate models calibrate solves
+    if model in PIXEL_LENS_MODELS:  # undistort_exact is for the normalised-coordinate models
+        with pytest.raises(ValueError, match="pixels_to_lens"):
+            undistort_exact(cam, xy)
+        return
     xn_cv = undistort_exact(cam, xy)
     assert np.abs(cam.lens_to_pixels(xn_cv) - xy).max() < TOL_PX
     assert np.abs(xn_cv - xn).max() < 1e-12

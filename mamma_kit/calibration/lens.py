@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from mamma_kit.core.camera import Camera
-from mamma_kit.core.lens import distort_normalized, undistort_normalized
+from mamma_kit.core.lens import LENSES, distort_normalized, undistort_normalized
 
 
 def radtan_equivalent(cam: Camera, grid: int = 40) -> tuple[Camera, float]:
@@ -39,7 +39,11 @@ def undistort_exact(cam: Camera, xy_n2: np.ndarray) -> np.ndarray:
     own lens model, the one that projects) finishes it, so rendering and projection agree
     exactly. From that start a step or two converge: at most 4 are taken, since one point
     that does not converge (beyond a lens's fold) would keep every point of a rendered
-    image iterating. Normalised-coordinate models only (not vicon_radial)."""
+    image iterating. Normalised-coordinate models only: OpenCV has no start for vicon_radial
+    (it acts on pixels) and calibrate never poses boards through it; Camera.pixels_to_lens
+    inverts it."""
+    if LENSES[cam.model].on_pixels:
+        raise ValueError(f"undistort_exact has no {cam.model} lens: use Camera.pixels_to_lens")
     xy = np.asarray(xy_n2, np.float64).reshape(-1, 2)
     xd = cam.pixels_to_normalized(xy)
     if cam.model != "fisheye" and not np.any(cam.dist):  # (a zero fisheye is still equidistant)
