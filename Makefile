@@ -5,6 +5,7 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 # The CPU wheel of torch 2.13.0 lies on this machine's disk; any other request pulls a CUDA build.
+# (torch goes in first, so the extras, ray among them, find it installed and pull no other.)
 TORCH_SPEC ?= torch==2.13.0
 DEMO_OUT ?= demo-out
 
@@ -16,7 +17,7 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q "$(TORCH_SPEC)"
-	$(BIN)/python -m pip install -q -e ".[test,smplx]"
+	$(BIN)/python -m pip install -q -e ".[test,smplx,ray]"
 	$(BIN)/python -c "import torch; print('torch', torch.__version__)"
 	touch $@
 

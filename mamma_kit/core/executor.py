@@ -1,19 +1,35 @@
 """The one executor interface stages use for independent units of work (DESIGN.md s.7).
 
 ``run_units(fn, units, workers)`` calls ``fn(unit)`` for every unit and returns the results
-in order: in this process when one worker is asked for (or there is one unit), else in a
-local pool of fresh ("spawn") processes - never forked, since a forked child of a process
-that has used torch's OpenMP threads can hang. ``fn`` and the units must pickle. A
-distributed engine (Ray, Dask) can stand in for the pool behind the same call.
+in order. Which engine runs them is process-wide configuration:
+
+- ``local`` (default): in this process when one worker is asked for (or there is one unit,
+  or the units are ``threaded``: they already use every core, like network inference), else
+  in a local pool of fresh ("spawn") processes - never forked, since a forked child of a
+  process that has used torch's OpenMP threads can hang.
+- ``ray``: on a Ray cluster (core/executor_ray.py, imported only then): MAMMA_KIT_RAY_ADDRESS
+  names a running cluster, else a Ray instance on this machine (127.0.0.1) is started.
+
+The executor is chosen by ``--executor`` (CLI), else MAMMA_KIT_EXECUTOR, else capture.toml's
+``[settings] executor``, else local. ``fn`` and the units must pickle; the unit boundaries are
+the caller's, never the engine's, so results do not depend on the executor.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Callable, Iterable, Sequence, TypeVar
+from contextlib import contextmanager
+from typing import Callable, Iterable, Iterator, Sequence, TypeVar
+
+from mamma_kit.core.errors import UserError
 
 U = TypeVar("U")
 R = TypeVar("R")
+
+EXECUTORS = ("local", "ray")
+_chosen: dict[str, str | None] = {"executor": None, "address": None}  # set by --executor / a run
+# set in a Ray worker process (core/executor_ray.py): the units a unit starts run in its process
+INSIDE_UNIT_ENV = "MAMMA_KIT_INSIDE_UNIT"
 
 
 def default_workers(n_units: int, workers: int | None = None) -> int:
@@ -22,6 +38,52 @@ def default_workers(n_units: int, workers: int | None = None) -> int:
         env = os.environ.get("MAMMA_KIT_WORKERS")
         workers = int(env) if env else (os.cpu_count() or 1)
     return max(1, min(int(workers), n_units))
+
+
+def _check(name: str, where: str) -> str:
+    name = str(name).strip().lower()
+    if name not in EXECUTORS:
+        raise UserError(f"unknown executor '{name}' ({where})", f"use one of {', '.join(EXECUTORS)}")
+    return name
+
+
+def set_executor(name: str | None, address: str | None = None) -> None:
+    """Choose the executor for this process (``None``: back to MAMMA_KIT_EXECUTOR / local)."""
+    _chosen["executor"] = None if name is None else _check(name, "--executor")
+    _chosen["address"] = address
+
+
+def chosen() -> tuple[str | None, str | None]:
+    """(executor, address) as set_executor left them, to restore later with set_executor(*chosen())."""
+    return _chosen["executor"], _chosen["address"]
+
+
+def executor_name() -> str:
+    """The executor run_units uses now: set_executor's, else MAMMA_KIT_EXECUTOR, else local."""
+    if _chosen["executor"]:
+        return _chosen["executor"]
+    env = os.environ.get("MAMMA_KIT_EXECUTOR")
+    return _check(env, "MAMMA_KIT_EXECUTOR") if env else "local"
+
+
+def ray_address() -> str | None:
+    """The Ray cluster to join (None: start one on this machine)."""
+    return _chosen["address"] or os.environ.get("MAMMA_KIT_RAY_ADDRESS") or None
+
+
+@contextmanager
+def executor_for_run(settings: dict) -> Iterator[str]:
+    """capture.toml's ``[settings] executor`` / ``ray_address`` for one run, unless --executor
+    or MAMMA_KIT_EXECUTOR already chose (the command line and environment win over the file)."""
+    saved = dict(_chosen)
+    name = settings.get("executor")
+    if name is not None and not _chosen["executor"] and not os.environ.get("MAMMA_KIT_EXECUTOR"):
+        _chosen["executor"] = _check(name, "capture.toml [settings] executor")
+        _chosen["address"] = _chosen["address"] or settings.get("ray_address")
+    try:
+        yield executor_name()
+    finally:
+        _chosen.update(saved)
 
 
 def _init_worker(quiet: bool) -> None:
@@ -37,9 +99,21 @@ def _init_worker(quiet: bool) -> None:
     log.set_quiet(quiet)
 
 
-def run_units(fn: Callable[[U], R], units: Iterable[U], workers: int | None = None) -> list[R]:
+def run_units(fn: Callable[[U], R], units: Iterable[U], workers: int | None = None,
+              threaded: bool = False) -> list[R]:
+    """``[fn(u) for u in units]`` on the chosen executor. ``workers=1`` keeps the units in this
+    process whatever the executor (e.g. a model held here); on Ray, ``workers`` caps the units
+    in flight. ``threaded``: each unit already uses all cores of a machine, so the local
+    executor runs them here one after another (Ray still spreads them over its nodes)."""
     items: Sequence[U] = list(units)
-    n = default_workers(len(items), workers)
+    if os.environ.get(INSIDE_UNIT_ENV):
+        return [fn(u) for u in items]
+    if len(items) > 1 and workers != 1 and executor_name() == "ray":
+        from mamma_kit.core import log
+        from mamma_kit.core.executor_ray import run_units_ray
+
+        return run_units_ray(fn, items, workers, address=ray_address(), quiet=log.is_quiet())
+    n = 1 if threaded else default_workers(len(items), workers)
     if n <= 1:
         return [fn(u) for u in items]
     import concurrent.futures as cf
