@@ -11,6 +11,7 @@ so the points stay with the track where people overlap. Each camera is a unit wi
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -109,40 +110,65 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
     models = [model_path(DETECTOR), model_path(LANDMARKER)]
     settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures}
     t0 = time.perf_counter()
-    per_cam, ran, est = [], [], None
+    per_cam, todo = {}, []
     for cam in cams:
         manifest = StageManifest(ws.cache_dir, f"keypoints-{cam}", ws.root)
-        inputs, out = [ws.mask_file(cam), cap.cameras[cam].video, *models], ws.keypoints_file(cam)
+        inputs = [ws.mask_file(cam), cap.cameras[cam].video, *models]
         state = manifest.check(inputs, {**settings, "camera": cam})
-        if state.fresh and not force and out.is_file():
-            per_cam.append({"camera": cam, "skipped": True, **manifest.load().get("summary", {})})
-            continue
-        if est is None:
-            from mamma_kit.keypoints.estimator import PoseEstimator
+        if state.fresh and not force and ws.keypoints_file(cam).is_file():
+            per_cam[cam] = {"camera": cam, "skipped": True, **manifest.load().get("summary", {})}
+        else:
+            todo.append(cam)
+    from mamma_kit.core.executor import run_units
+    _ESTIMATORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
-            est = PoseEstimator(threads)
-        tc = time.perf_counter()
-        hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-        masks = MaskTracks.load(ws.mask_file(cam))
-        kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank)
-        kt.producer = producer("keypoints", hashes)
-        kt.save(out)
-        outputs = [out]
-        if summ["instances"] == 0:
-            log.warn(f"{cam}: no tracked person, so no keypoints (an empty keypoints/{cam}.npz)")
-        if pictures:
-            from mamma_kit.keypoints.pictures import write_keypoints_picture
-
-            pic = write_keypoints_picture(kt, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png")
-            summ["picture"] = ws.relative(pic)
-            outputs.append(pic)
-        manifest.record(inputs, {**settings, "camera": cam}, outputs, summ, time.perf_counter() - tc)
-        per_cam.append({"camera": cam, "skipped": False, **summ})
-        ran.append(cam)
-        log.info(f"{cam}: keypoints for {summ['with_pose']} of {summ['instances']} tracked person-frames "
-                 f"({summ['person_frames_per_s']} /s)")
+    unit = partial(_keypoints_one, root=ws.root, models=models, settings=settings, blank=blank, pictures=pictures,
+                   threads=threads)
+    # one unit per camera; LiteRT uses every core, so locally they run here one after another
+    for cam, summ in zip(todo, run_units(unit, todo, threaded=True)):
+        per_cam[cam] = {"camera": cam, "skipped": False, **summ}
+    ran = todo
+    per_cam = [per_cam[c] for c in cams]
     secs = time.perf_counter() - t0
     if not ran:
         log.info("keypoints: up to date (inputs unchanged); skipped (--force recomputes)")
     return {"stage": "keypoints", "skipped": not ran, "reason": "inputs unchanged" if not ran else
             f"ran {', '.join(ran)}", "model": MODEL_NAME, "cameras": per_cam, "seconds": round(secs, 2)}
+
+
+_ESTIMATORS: dict = {}
+
+
+def _keypoints_one(cam: str, root: Path, models: list[Path], settings: dict, blank: bool, pictures: bool,
+                   threads: int | None) -> dict:
+    """One camera: keypoints/<cam>.npz, its picture and its manifest (here, or in a worker)."""
+    from mamma_kit.core.workspace import Workspace
+
+    ws = Workspace(root)
+    cap = ws.load_capture()
+    manifest = StageManifest(ws.cache_dir, f"keypoints-{cam}", ws.root)
+    inputs, out = [ws.mask_file(cam), cap.cameras[cam].video, *models], ws.keypoints_file(cam)
+    if threads not in _ESTIMATORS:  # one estimator per process, as the cameras' loop had
+        from mamma_kit.keypoints.estimator import PoseEstimator
+
+        _ESTIMATORS[threads] = PoseEstimator(threads)
+    est = _ESTIMATORS[threads]
+    tc = time.perf_counter()
+    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
+    masks = MaskTracks.load(ws.mask_file(cam))
+    kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank)
+    kt.producer = producer("keypoints", hashes)
+    kt.save(out)
+    outputs = [out]
+    if summ["instances"] == 0:
+        log.warn(f"{cam}: no tracked person, so no keypoints (an empty keypoints/{cam}.npz)")
+    if pictures:
+        from mamma_kit.keypoints.pictures import write_keypoints_picture
+
+        pic = write_keypoints_picture(kt, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png")
+        summ["picture"] = ws.relative(pic)
+        outputs.append(pic)
+    manifest.record(inputs, {**settings, "camera": cam}, outputs, summ, time.perf_counter() - tc)
+    log.info(f"{cam}: keypoints for {summ['with_pose']} of {summ['instances']} tracked person-frames "
+             f"({summ['person_frames_per_s']} /s)")
+    return summ

@@ -10,6 +10,7 @@ run keeps the cameras it finished.
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 
 from mamma_kit.core import log
@@ -69,35 +70,24 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
             for c in cams:
                 unit_inputs[c].append(ws.keypoints_file(c))
         settings = {"source": "net", "arch": loaded.config.name, "weights": loaded.source}
-    per_cam, ran = [], []
-    pred = None
+    per_cam, todo = {}, []
     for cam in cams:
         manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
-        inputs, out = unit_inputs[cam], ws.landmarks_file(cam)
-        state = manifest.check(inputs, {**settings, "camera": cam})
-        if state.fresh and not force and out.is_file():
-            per_cam.append({"camera": cam, "skipped": True, **manifest.load().get("summary", {})})
-            continue
-        tc = time.perf_counter()
-        hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-        prod = producer("landmarks " + " ".join(f"{k}={v}" for k, v in settings.items()), hashes)
-        if source == "gt":
-            from mamma_kit.landmarks.gt import noisy_gt_landmarks
-
-            lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
-            lt.producer = prod
+        state = manifest.check(unit_inputs[cam], {**settings, "camera": cam})
+        if state.fresh and not force and ws.landmarks_file(cam).is_file():
+            per_cam[cam] = {"camera": cam, "skipped": True, **manifest.load().get("summary", {})}
         else:
-            from mamma_kit.core.tracks import KeypointTracks, MaskTracks
-            from mamma_kit.landmarks.inference import Predictor, run_camera
+            todo.append(cam)
+    from mamma_kit.core.executor import run_units
+    _PREDICTORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
-            pred = pred or Predictor(loaded, device)
-            kt = KeypointTracks.load(ws.keypoints_file(cam)) if loaded.config.keypoints_in else None
-            lt, summ = run_camera(pred, cam, MaskTracks.load(ws.mask_file(cam)), cap.cameras[cam].video, batch,
-                                  producer=prod, keypoints=kt)
-        lt.save(out)
-        manifest.record(inputs, {**settings, "camera": cam}, [out], summ, time.perf_counter() - tc)
-        per_cam.append({"camera": cam, "skipped": False, **summ})
-        ran.append(cam)
+    unit = partial(_landmarks_one, root=ws.root, source=source, settings=settings, unit_inputs=unit_inputs,
+                   noise=noise, outliers=outliers, seed=seed, loaded=loaded, device=device, batch=batch)
+    # one unit per camera; the network uses every core, so locally they run here one after another
+    for cam, summ in zip(todo, run_units(unit, todo, threaded=True)):
+        per_cam[cam] = {"camera": cam, "skipped": False, **summ}
+    ran = todo
+    per_cam = [per_cam[c] for c in cams]
     secs = time.perf_counter() - t0
     if ran:
         log.info(f"landmarks written for {', '.join(ran)} in {secs:.1f} s")
@@ -108,3 +98,40 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
     if loaded is not None:
         summary.update({"arch": loaded.config.name, "weights": loaded.source, "landmark_set": loaded.landmark_set})
     return summary
+
+
+_PREDICTORS: dict = {}
+
+
+def _landmarks_one(cam: str, root: Path, source: str, settings: dict, unit_inputs: dict, noise: str,
+                   outliers: float, seed: int, loaded, device: str, batch: int) -> dict:
+    """One camera: landmarks/<cam>.npz and its manifest (here, or in a worker of the executor)."""
+    from mamma_kit.core.workspace import Workspace
+
+    ws = Workspace(root)
+    manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
+    inputs, out = unit_inputs[cam], ws.landmarks_file(cam)
+    tc = time.perf_counter()
+    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
+    prod = producer("landmarks " + " ".join(f"{k}={v}" for k, v in settings.items()), hashes)
+    if source == "gt":
+        from mamma_kit.landmarks.gt import noisy_gt_landmarks
+
+        lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
+        lt.producer = prod
+    else:
+        from mamma_kit.core.tracks import KeypointTracks, MaskTracks
+        from mamma_kit.landmarks.inference import Predictor, run_camera
+
+        key = (id(loaded), device)  # one predictor per model and process, as the cameras' loop had
+        if key not in _PREDICTORS:
+            _PREDICTORS.clear()
+            _PREDICTORS[key] = (loaded, Predictor(loaded, device))
+        pred = _PREDICTORS[key][1]
+        cap = ws.load_capture()
+        kt = KeypointTracks.load(ws.keypoints_file(cam)) if loaded.config.keypoints_in else None
+        lt, summ = run_camera(pred, cam, MaskTracks.load(ws.mask_file(cam)), cap.cameras[cam].video, batch,
+                              producer=prod, keypoints=kt)
+    lt.save(out)
+    manifest.record(inputs, {**settings, "camera": cam}, [out], summ, time.perf_counter() - tc)
+    return summ
