@@ -124,18 +124,18 @@ def test_regressed_kinematics_equal_lbs_and_their_jacobians(body, reg):
     ids = np.unique(reg.ids)
     with torch.no_grad():
         v, _ = pose_restricted(body, pose_dict(pose.float(), transl.float(), betas.float()), ids)
-    assert np.abs(f["v"].numpy() - reg.apply(v.numpy().astype(float), ids)).max() < 1e-5
+    assert np.abs(f.v.numpy() - reg.apply(v.numpy().astype(float), ids)).max() < 1e-5
     db = torch.zeros_like(betas)
     db[:, 3] = 1e-5
-    fd = (kin.forward(betas + db, rot, transl, dtype=DTYPE)["v"] - f["v"]) / 1e-5
-    assert (fd - f["Jb"][..., 3]).abs().max() < 1e-6
+    fd = (kin.forward(betas + db, rot, transl, dtype=DTYPE).v - f.v) / 1e-5
+    assert (fd - f.Jb[..., 3]).abs().max() < 1e-6
     j = 18  # left elbow: its subtree turned by a small world rotation e moves a point by e x u
     e = torch.tensor([1e-6, 2e-6, -1e-6], dtype=DTYPE)
     rot2 = rot.clone()
-    rot2[:, :, j] = so3_exp(f["G"][:, :, kin.parents[j]].transpose(-1, -2) @ e) @ rot[:, :, j]
-    dv = kin.forward(betas, rot2, transl, dtype=DTYPE)["v"] - f["v"]
+    rot2[:, :, j] = so3_exp(f.G[:, :, kin.parents[j]].transpose(-1, -2) @ e) @ rot[:, :, j]
+    dv = kin.forward(betas, rot2, transl, dtype=DTYPE).v - f.v
     slot = (kin.infl == j).float()  # (N, M)
-    u = (f["u"] * slot[None, None, ..., None]).sum(-2)
+    u = (f.u * slot[None, None, ..., None]).sum(-2)
     assert (dv - torch.linalg.cross(e.expand_as(u), u)).abs().max() < 1e-11
     assert dv.abs().max() > 1e-7  # the elbow moves some points
 

@@ -90,21 +90,21 @@ def test_kinematics_match_lbs_and_jacobians(body, kin):
     v_ref, j_ref = pose_restricted(body, {**prm, "betas": betas[:, None]})
     rot = rotmats_from_params({k: v.numpy() for k, v in prm.items()}, P, T)
     out = kin.forward(betas, rot, prm["transl"], jac=True, shape_jac=True, dtype=DTYPE)
-    assert (out["v"] - v_ref.double()).abs().max() < 1e-5
-    assert (out["joints"] - j_ref.double()).abs().max() < 1e-5
+    assert (out.v - v_ref.double()).abs().max() < 1e-5
+    assert (out.joints - j_ref.double()).abs().max() < 1e-5
     for j in (0, 5, 18, 40):  # root, knee, elbow, a finger
         eps = torch.tensor([1e-6, -2e-6, 1.5e-6], dtype=DTYPE)
         par = kin.parents[j]
-        Gp = out["G"][:, :, par] if par >= 0 else torch.eye(3, dtype=DTYPE).expand(P, T, 3, 3)
+        Gp = out.G[:, :, par] if par >= 0 else torch.eye(3, dtype=DTYPE).expand(P, T, 3, 3)
         rot2 = rot.clone()
         rot2[:, :, j] = so3_exp((Gp.transpose(-1, -2) @ eps).expand(P, T, 3)) @ rot[:, :, j]
-        dv = kin.forward(betas, rot2, prm["transl"], dtype=DTYPE)["v"] - out["v"]
+        dv = kin.forward(betas, rot2, prm["transl"], dtype=DTYPE).v - out.v
         mask = (kin.infl == j).double()
-        pred = (-(skew(out["u"]) @ eps) * mask[None, None, ..., None]).sum(-2)
+        pred = (-(skew(out.u) @ eps) * mask[None, None, ..., None]).sum(-2)
         assert (dv - pred).abs().max() < 1e-3 * dv.abs().max() + 1e-12
     db = torch.randn(16, generator=g).double() * 1e-6
-    dv = kin.forward(betas.double() + db, rot, prm["transl"], dtype=DTYPE)["v"] - out["v"]
-    assert (dv - out["Jb"] @ db).abs().max() < 1e-3 * dv.abs().max()
+    dv = kin.forward(betas.double() + db, rot, prm["transl"], dtype=DTYPE).v - out.v
+    assert (dv - out.Jb @ db).abs().max() < 1e-3 * dv.abs().max()
 
 
 def test_triangulation_recovers_points_and_rejects_outliers():

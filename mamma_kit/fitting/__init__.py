@@ -10,6 +10,7 @@ Entry points:
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -63,7 +64,7 @@ def keypoint_report(model, data, result: FitResult, regressor, min_vis: float = 
     with torch.no_grad():
         f = kin.forward(torch.as_tensor(result.betas), so3_exp(torch.as_tensor(result.pose)),
                         torch.as_tensor(result.transl), dtype=torch.float64)
-        uv, valid = RigTensors.from_rig(data.rig).project(f["v"][None])
+        uv, valid = RigTensors.from_rig(data.rig).project(f.v[None])
     err = np.linalg.norm(uv.numpy() - data.kp_xy, axis=-1)  # (C, P, T, 33)
     use = (data.kp_vis > min_vis) & valid.numpy() & (data.kp_size[..., None] > 0)
     rel = err / np.maximum(data.kp_size[..., None], 1e-6) * 100
@@ -93,8 +94,7 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         torch.set_num_threads(int(threads))
     if body_model is None:
         body_model = ws.load_capture().body_model if ws.capture_toml.is_file() else "open"
-    cfg = config or FitConfig()
-    cfg.stages = stages
+    cfg = dataclasses.replace(config or FitConfig(), stages=stages)  # the caller's config stays as it was
     model = load_body_model(body_model)
     t0 = time.perf_counter()
     data = load_fit_data(ws, cameras, camera_list, n_landmarks=len(model.landmark_ids))

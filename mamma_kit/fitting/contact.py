@@ -283,11 +283,12 @@ class ContactTerms:
     """Stage 4's contact and repulsion terms for the Gauss-Newton solver.
 
     The points are the proxy vertices and landmarks of every person (one kinematics over
-    both sets); the active set (contact.ActiveSet, refreshed every iteration) pairs a point
-    of one person with a triangle of another. Linearised along the unit normal n from the
-    closest point q to the point x, d(delta) ~ d + n.(dx - dq): each pair gives one row for
-    the point's person (lever arms of x) and one for the triangle's person (lever arms of its
-    three vertices, weighted by q's barycentric coordinates), in the same frame."""
+    both sets); the active set (contact.ActiveSet, refreshed every ``refresh_every``
+    iterations) pairs a point of one person with a triangle of another. Linearised along
+    the unit normal n from the closest point q to the point x, d(delta) ~ d + n.(dx - dq):
+    each pair gives one row for the point's person (lever arms of x) and one for the
+    triangle's person (lever arms of its three vertices, weighted by q's barycentric
+    coordinates), in the same frame."""
 
     def __init__(self, model, cfg: ContactConfig, frames: np.ndarray, pull_w: torch.Tensor, active: tuple):
         from mamma_kit.fitting.kinematics import BodyKinematics
@@ -310,28 +311,47 @@ class ContactTerms:
         self.pos = torch.as_tensor(pos)
         self.n = 3 * len(act) + 3
         self.sets: list[ActiveSet] = []
-        self.stats = {"inside_points": 0, "pairs": 0}
+        self.stats = {"inside_points": 0, "pairs": 0}  # of the last evaluate / refresh
+        self.refreshes = 0  # refresh() calls so far
+        self.inside_points_first: int | None = None  # penetrating points at the first refresh
 
-    def _all_points(self, f, betas, transl):
+    def use_frames(self, frames: np.ndarray) -> None:
+        """Restrict the terms to these frames (e.g. ``contact_frames``'s); clears the active set."""
+        self.frames = torch.as_tensor(frames)
+        self.sets = []
+
+    @torch.no_grad()
+    def contact_frames(self, f, betas, transl) -> np.ndarray:
+        """Frames (indices into the pass's T) among the current ones where some pair's
+        boxes, from the posed proxies and a margin, intersect (ContactModel.gate)."""
+        cp, _ = self.all_points(f, betas, transl)
+        return self.frames.numpy()[ContactModel.gate(cp[:, :, :self.Np], margin=self.cfg.margin)]
+
+    def all_points(self, f, betas, transl) -> tuple[torch.Tensor, torch.Tensor]:
         """Posed collision points (P, G, Nc, 3) (proxy vertices first) and landmarks (P, G, L, 3)
-        at the gated frames."""
+        at the terms' G frames, from a forward pass f (kinematics.Posed) of the same poses."""
         from mamma_kit.body.lbs import skin_shared_points
 
-        P, U = betas.shape[0], self.kin.N
         _, v0 = self.kin.rest(betas, torch.float32)  # (P, U, 3)
-        A = torch.cat([f["G"], f["tA"].unsqueeze(-1)], -1)[:, self.frames]  # (P, G, 55, 3, 4)
+        A = torch.cat([f.G, f.tA.unsqueeze(-1)], -1)[:, self.frames]  # (P, G, 55, 3, 4)
         # one GEMM per person over all its gated frames (body.lbs's shared-rest-points blend)
         v = skin_shared_points(v0, A.flatten(-2), self.kin.f32["W"]) + transl.float()[:, self.frames, None]
         return v[:, :, :self.Nc], v[:, :, self.Nc:]
 
     @torch.no_grad()
     def refresh(self, f, betas, transl, force: bool = False) -> None:
-        self._calls = getattr(self, "_calls", -1) + 1
-        if self.sets and not force and self._calls % self.cfg.refresh_every:
+        """Re-pair the points with the other bodies' triangles every ``refresh_every`` calls
+        (or when ``force``d or empty). The first call also records the penetrating points
+        at that state in ``inside_points_first`` (the stage's starting count)."""
+        self.refreshes += 1
+        if self.sets and not force and (self.refreshes - 1) % self.cfg.refresh_every:
             return
-        cp, lm = self._all_points(f, betas, transl)
+        cp, lm = self.all_points(f, betas, transl)
         self.sets = self.cm.refresh(cp[:, :, :self.Np], lm, self.pull_w[:, self.frames], points=cp)
         self.stats["pairs"] = int(sum(len(s.frame) for s in self.sets))
+        if self.refreshes == 1:
+            self.evaluate(f, betas, transl, jac=False)
+            self.inside_points_first = self.stats["inside_points"]
 
     def _pairs(self):
         s = self.sets
@@ -452,7 +472,7 @@ class FloorTerms:
 
     def evaluate(self, f, betas, transl, jac: bool):
         P, T = transl.shape[:2]
-        z = f["v"][:, :, self.foot, 2]  # (P, T, F)
+        z = f.v[:, :, self.foot, 2]  # (P, T, F)
         w = self.weight[:, :, self.foot]
         c = torch.where(z < 0, torch.full_like(z, 1 / self.sigma), w.sqrt() / self.sigma)
         e = c * z

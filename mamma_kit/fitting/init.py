@@ -7,8 +7,12 @@
   reweighting rounds on the reprojection error (Geman-McClure, shrinking scale) so
   outliers lose their say.
 - ``rigid_from_landmarks``: global rotation and translation per person and frame by a
-  weighted Procrustes (Kabsch) fit of the rest-pose torso landmarks to their triangulated
-  positions: orientation comes straight from the landmark set, no yaw search needed.
+  weighted Procrustes (Kabsch) fit of the rest-pose torso landmarks (and, with keypoints,
+  the triangulated head and trunk points) to their triangulated positions: orientation
+  comes straight from the landmark set; only frames where too little was triangulated get
+  stage 1 from several headings (stages.Fitter._yaw_starts).
+- ``palm_landmarks`` / ``hand_orientations``: each hand's world orientation from its
+  triangulated palm landmarks (the palm candidate of repose.repose_limbs).
 """
 
 from __future__ import annotations

@@ -9,11 +9,12 @@ Each vertex depends on the few joints on its skinning joints' chains ("influence
 padded to M per vertex), so the Jacobian is built per body part (parts share their chains)
 and the normal equations stay small dense blocks.
 
-The forward pass equals body.lbs.pose_restricted (checked in tests) and runs in float64
-without autograd; the L-BFGS stages use body.lbs itself.
+The forward pass (``BodyKinematics.forward`` -> ``Posed``) equals body.lbs.pose_restricted
+(checked in tests) and runs without autograd; every stage of the fit uses it (body.lbs
+stays the reference for the written SMPL-X joints and the reports).
 
-Regressed points (``BodyKinematics.regressed``: the fit's 33 keypoints, each a convex
-combination X = sum_v c_v V_v of vertices) are exact "virtual vertices" with one rest
+Regressed points (``BodyKinematics(model, regressor=...)``: the fit's 33 keypoints, each a
+convex combination X = sum_v c_v V_v of vertices) are exact "virtual vertices" with one rest
 position per skinning slot: V_v = sum_j w_vj (G_j v_v + tA_j), so X = sum_j w'_j (G_j y_j +
 tA_j) with w'_j = sum_v c_v w_vj and y_j = sum_v c_v w_vj v_v / w'_j (and likewise its shape
 and pose correctives). Lever arms and the shape Jacobian follow the same formulas per slot.
@@ -22,6 +23,7 @@ and pose correctives). Lever arms and the shape Jacobian follow the same formula
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -84,6 +86,29 @@ def so3_left_jacobian_inv(w: torch.Tensor) -> torch.Tensor:
     W = skew(w)
     eye = torch.eye(3, dtype=w.dtype).expand(W.shape)
     return eye - 0.5 * W + c[..., None, None] * (W @ W)
+
+
+class Posed(NamedTuple):
+    """One forward pass of BodyKinematics (P people, T frames, N points, M influence slots,
+    B shape coefficients), in the pass's dtype:
+
+    v (P, T, N, 3) posed points; joints (P, T, 55, 3) posed joints (with translation);
+    G (P, T, 55, 3, 3) world rotations; p (P, T, 55, 3) joint positions (without
+    translation); tA (P, T, 55, 3) translation of each joint transform; Jr (P, 55, 3) rest
+    joints; rot (P, T, 55, 3, 3) local rotations. With ``jac``: u (P, T, N, M, 3) lever arms
+    per influence slot, u_joints (P, T, 55, Mj, 3) the joints' own; with ``shape_jac``:
+    Jb (P, T, N, 3, B) = d v / d betas (None otherwise)."""
+
+    v: torch.Tensor
+    joints: torch.Tensor
+    G: torch.Tensor
+    p: torch.Tensor
+    tA: torch.Tensor
+    Jr: torch.Tensor
+    rot: torch.Tensor
+    u: torch.Tensor | None = None
+    u_joints: torch.Tensor | None = None
+    Jb: torch.Tensor | None = None
 
 
 @dataclass
@@ -195,29 +220,26 @@ class BodyKinematics:
     # ---- pose -------------------------------------------------------------------------
     @torch.no_grad()
     def forward(self, betas: torch.Tensor, rot: torch.Tensor, transl: torch.Tensor, jac: bool = False,
-                shape_jac: bool = False, dtype=CDTYPE) -> dict:
-        """betas (P, B), rot (P, T, 55, 3, 3) local rotations, transl (P, T, 3).
-
-        Returns v (P, T, N, 3) posed vertices, joints (P, T, 55, 3), G (P, T, 55, 3, 3) world
-        rotations; with ``jac`` also u (P, T, N, M, 3) lever arms per influence slot; with
-        ``shape_jac`` also Jb (P, T, N, 3, B) = d v / d betas. Computed in ``dtype``.
-        """
+                shape_jac: bool = False, dtype=CDTYPE) -> Posed:
+        """betas (P, B), rot (P, T, 55, 3, 3) local rotations, transl (P, T, 3) -> ``Posed``
+        (its doc gives the shapes): the points, joints and joint transforms; with ``jac``
+        also the lever arms, with ``shape_jac`` also d v / d betas. Computed in ``dtype``."""
         Jr = self.rest(betas, dtype)[0]
         rot = rot.to(dtype)
         G, p = forward_kinematics(rot, Jr[:, None], self.parents)  # (P, T, 55, 3, 3), (P, T, 55, 3)
         tA = p - (G @ Jr[:, None].unsqueeze(-1)).squeeze(-1)  # translation of each joint transform
-        f = {"G": G, "p": p, "tA": tA, "Jr": Jr, "rot": rot}
-        return self.forward_from(f, betas, transl, jac, shape_jac, dtype)
+        joints_only = Posed(v=None, joints=None, G=G, p=p, tA=tA, Jr=Jr, rot=rot)
+        return self.forward_from(joints_only, betas, transl, jac, shape_jac, dtype)
 
     @torch.no_grad()
-    def forward_from(self, f: dict, betas: torch.Tensor, transl: torch.Tensor, jac: bool = False,
-                     shape_jac: bool = False, dtype=CDTYPE) -> dict:
+    def forward_from(self, f: Posed, betas: torch.Tensor, transl: torch.Tensor, jac: bool = False,
+                     shape_jac: bool = False, dtype=CDTYPE) -> Posed:
         """This kinematics' points from another forward pass ``f`` of the same poses (its
         joint transforms G, p, tA, Jr, rot; any vertex set): the keypoints ride on the
         landmarks' forward kinematics. Returns what ``forward`` returns."""
         d = self.f32 if dtype == CDTYPE else self.__dict__
         v0 = self.rest(betas, dtype)[1]
-        G, p, tA, Jr, rot = (f[k].to(dtype) for k in ("G", "p", "tA", "Jr", "rot"))
+        G, p, tA, Jr, rot = (t.to(dtype) for t in (f.G, f.p, f.tA, f.Jr, f.rot))
         P, T = rot.shape[:2]
         pt = (self.skin_idx.shape[1], 3) if self.per_slot else (3,)
         if self.posedirs is not None:
@@ -232,29 +254,32 @@ class BodyKinematics:
         x = tA[:, :, self.skin_idx] + Gk[..., 0] * vv[..., 0:1] + Gk[..., 1] * vv[..., 1:2] + Gk[..., 2] * vv[..., 2:3]
         tr = transl.to(dtype)[:, :, None]
         v = (x * d["skin_w"][..., None]).sum(-2) + tr
-        out = {"v": v, "joints": p + tr, "G": G, "p": p, "tA": tA, "Jr": Jr, "rot": rot}
+        u = u_joints = Jb = None
         if jac:
             pz = torch.cat([p, torch.zeros_like(p[:, :, :1])], 2)  # dummy joint J -> zero
             u = torch.einsum("nmk,ptnkd->ptnmd", d["coef"], x) - d["coef_sum"][..., None] * pz[:, :, self.infl]
-            out["u"] = u
-            out["u_joints"] = p.unsqueeze(-2) - pz[:, :, self.joint_infl]  # (P, T, 55, Mj, 3); dummy slots unused
+            u_joints = p.unsqueeze(-2) - pz[:, :, self.joint_infl]  # (P, T, 55, Mj, 3); dummy slots unused
         if shape_jac:
-            Sd = d["shapedirs"]  # (N, 3, B), regressed points (N, K, 3, B)
-            if self.per_slot:  # each slot's own shape directions under its joint's rotation
-                Jb = torch.einsum("nk,ptnkij,nkjb->ptnib", d["skin_w"], Gk, Sd)
-            else:
-                Gt = torch.einsum("nk,ptkij->ptnij", d["W"], G)  # (P, T, N, 3, 3) blended rotation
-                Jb = Gt[..., 0:1] * Sd[:, 0:1] + Gt[..., 1:2] * Sd[:, 1:2] + Gt[..., 2:3] * Sd[:, 2:3]  # (P, T, N, 3, B)
-            SJ = d["J_shapedirs"]  # (55, 3, B)
-            dSJ = SJ - torch.cat([torch.zeros_like(SJ[:1]), SJ[self.parents[1:]]], 0)
-            Gpar = torch.cat([torch.eye(3, dtype=dtype).expand(P, T, 1, 3, 3), G[:, :, self.parents[1:]]], 2)
-            D = SJ[0] + torch.einsum("ka,ptaij->ptkij", d["anc_noroot"], Gpar @ dSJ)  # (P, T, 55, 3, B)
-            E = D - G @ SJ
-            Jb = Jb + torch.einsum("nk,ptkij->ptnij", d["W"], E)
-            out["Jb"] = Jb
-        return out
+            Jb = self._shape_jacobian(d, G, Gk, P, T, dtype)
+        return Posed(v, p + tr, G, p, tA, Jr, rot, u, u_joints, Jb)
 
-    def points(self, f: dict, betas: torch.Tensor, transl: torch.Tensor, pi: torch.Tensor, ti: torch.Tensor,
+    def _shape_jacobian(self, d: dict, G: torch.Tensor, Gk: torch.Tensor, P: int, T: int, dtype) -> torch.Tensor:
+        """d v / d betas (P, T, N, 3, B) from the world rotations G (P, T, 55, 3, 3) and
+        their gather at the skinning joints Gk (P, T, N, K, 3, 3)."""
+        Sd = d["shapedirs"]  # (N, 3, B), regressed points (N, K, 3, B)
+        if self.per_slot:  # each slot's own shape directions under its joint's rotation
+            Jb = torch.einsum("nk,ptnkij,nkjb->ptnib", d["skin_w"], Gk, Sd)
+        else:
+            Gt = torch.einsum("nk,ptkij->ptnij", d["W"], G)  # (P, T, N, 3, 3) blended rotation
+            Jb = Gt[..., 0:1] * Sd[:, 0:1] + Gt[..., 1:2] * Sd[:, 1:2] + Gt[..., 2:3] * Sd[:, 2:3]  # (P, T, N, 3, B)
+        SJ = d["J_shapedirs"]  # (55, 3, B)
+        dSJ = SJ - torch.cat([torch.zeros_like(SJ[:1]), SJ[self.parents[1:]]], 0)
+        Gpar = torch.cat([torch.eye(3, dtype=dtype).expand(P, T, 1, 3, 3), G[:, :, self.parents[1:]]], 2)
+        D = SJ[0] + torch.einsum("ka,ptaij->ptkij", d["anc_noroot"], Gpar @ dSJ)  # (P, T, 55, 3, B)
+        E = D - G @ SJ
+        return Jb + torch.einsum("nk,ptkij->ptnij", d["W"], E)
+
+    def points(self, f: Posed, betas: torch.Tensor, transl: torch.Tensor, pi: torch.Tensor, ti: torch.Tensor,
                vi: torch.Tensor, jac: bool = False, dtype=CDTYPE) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Posed vertices for arbitrary entries (person pi, frame ti, vertex vi of this
         kinematics' set), from a forward pass ``f`` (any vertex set) of the same poses:
@@ -264,13 +289,13 @@ class BodyKinematics:
         b = betas.to(dtype)[pi]
         v0 = d["v_template"][vi] + torch.einsum("e...db,eb->e...d", d["shapedirs"][vi], b)  # (E, 3) or (E, K, 3)
         idx = self.skin_idx[vi]  # (E, K)
-        G = f["G"][pi[:, None], ti[:, None], idx]  # (E, K, 3, 3)
+        G = f.G[pi[:, None], ti[:, None], idx]  # (E, K, 3, 3)
         vk = v0[:, :, None, :] if self.per_slot else v0[:, None, None, :]
-        x = (G * vk).sum(-1) + f["tA"][pi[:, None], ti[:, None], idx]  # (E, K, 3)
+        x = (G * vk).sum(-1) + f.tA[pi[:, None], ti[:, None], idx]  # (E, K, 3)
         v = (x * d["skin_w"][vi][..., None]).sum(1) + transl.to(dtype)[pi, ti]
         if not jac:
             return v, None
-        pz = torch.cat([f["p"], torch.zeros_like(f["p"][:, :, :1])], 2)
+        pz = torch.cat([f.p, torch.zeros_like(f.p[:, :, :1])], 2)
         u = torch.einsum("emk,ekd->emd", d["coef"][vi], x) - d["coef_sum"][vi][..., None] * \
             pz[pi[:, None], ti[:, None], self.infl[vi]]
         return v, u
@@ -337,17 +362,6 @@ def rotmats_from_params(params: dict, P: int, T: int) -> torch.Tensor:
             aa[:, :, off // 3: (off + n) // 3] = torch.as_tensor(np.asarray(params[k]), dtype=DTYPE).reshape(P, T, n // 3, 3)
         off += n
     return axis_angle_to_matrix(aa)
-
-
-def params_from_rotmats(rot: torch.Tensor) -> dict[str, torch.Tensor]:
-    """Local rotations (..., 55, 3, 3) -> SMPL-X pose keys (axis-angle)."""
-    aa = so3_log(rot.to(DTYPE))
-    out = {}
-    off = 0
-    for k, n in sk.POSE_PARAMS.items():
-        out[k] = aa[..., off // 3: (off + n) // 3, :].reshape(*aa.shape[:-2], n)
-        off += n
-    return out
 
 
 @dataclass

@@ -30,6 +30,9 @@ what every term contributes (energy per term before and after, at the final robu
 Every stage is Levenberg-Marquardt on the block-sparse problem (gauss_newton.py) rather than
 the paper's L-BFGS: on a CPU it needs a few iterations where L-BFGS needs hundreds of
 evaluations (FACTS.md: the official schedule would take ~10 minutes per 100 frames here).
+One solver state (gauss_newton.State: local rotation matrices, translations, shapes) goes
+from stage to stage, and one body forward model (kinematics.BodyKinematics) serves them all;
+the pose becomes axis-angle once, when the chunks are joined into the FitResult.
 Long sequences run in overlapping chunks with one shape per person (estimated first on
 frames spread over the whole sequence) and are cross-faded where chunks overlap.
 """
@@ -47,20 +50,21 @@ from mamma_kit.body import skeleton as sk
 from mamma_kit.body.lbs import pose_restricted
 from mamma_kit.core import log
 from mamma_kit.fitting import init as finit
-from mamma_kit.fitting.contact import ContactConfig, ContactModel, contact_weights
+from mamma_kit.fitting.contact import ContactConfig, ContactTerms, FloorTerms, Terms, contact_weights
 from mamma_kit.fitting.data import FitData
-from mamma_kit.fitting.energies import ReprojectionEnergy, pose_dict
+from mamma_kit.fitting.energies import pixel_errors, pose_dict
 from mamma_kit.fitting.gauss_newton import DTYPE, GaussNewton, GNConfig, GNReport, Obs, PointSet, State
-from mamma_kit.fitting.kinematics import BodyKinematics, so3_log
+from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp, so3_log
 from mamma_kit.fitting.projection import RigTensors
+from mamma_kit.fitting.repose import FINGER_JOINTS, repose_limbs
 
 RIGID_S1_PARTS = ("torso", "pelvis", "neck", "head")
-FINGER_JOINTS = np.arange(25, 55)
-# chains whose pose a neighbouring frame may lend (Fitter.repose_limbs), outer to
-# inner: the arms from the shoulder, the hands from the wrist, then each finger alone
-# (a hand where one finger found the right bend in some frames and another in others)
-ARM_ROOTS = (sk.JOINT_NAMES.index("left_shoulder"), sk.JOINT_NAMES.index("right_shoulder"))
-FINGER_ROOTS = tuple(j for j, n in enumerate(sk.JOINT_NAMES) if n.endswith("1") and j in FINGER_JOINTS)
+# a view sees a person in a frame when the person's landmark visibilities there sum to more
+# than this (about 4 % of the 512 landmarks: a torso or a limb, not a stray few) ...
+MIN_VISIBLE_LANDMARKS = 20
+# ... or (with keypoints) when this many of BlazePose's 33 points are visible (> 0.5)
+MIN_VISIBLE_KEYPOINTS = 12
+FOOT_PARTS = ("left_foot", "right_foot")
 
 
 @dataclass
@@ -80,7 +84,7 @@ class FitConfig:
     # depend on how small their sigma is (issue 20: exact landmarks left hands 128 mm off)
     s2_wide_frac: float = 0.3
     # after stage 2, arms, hands and fingers re-posed from the palm landmarks and from
-    # neighbouring frames where that fits better (Fitter.repose_limbs), then stage 2 again
+    # neighbouring frames where that fits better (repose.repose_limbs), then stage 2 again
     repose_limbs: bool = True
     repose_compare_frac: float = 0.1  # robust scale (fraction of the height, ~ a hand) judging a re-posed limb
     s2b_wide_frac: float = 0.1  # robust scale at the start of the second stage-2 pass (fraction of the height)
@@ -105,6 +109,7 @@ class FitConfig:
     landmark_weight: float = 1.0  # 0: keypoints alone (benchmarks)
 
     def prior_sigma(self) -> np.ndarray:
+        """(55,) rad: the pose prior's sigma per joint (the fingers' own, the rest the body's)."""
         ps = np.full(sk.NUM_JOINTS, self.body_prior_sigma)
         ps[FINGER_JOINTS] = self.finger_prior_sigma
         return ps
@@ -172,6 +177,14 @@ class StageStats:
         return out
 
 
+def record_run(stats: StageStats, rep: GNReport) -> None:
+    """Add one stage's Gauss-Newton report (energies, terms, iterations) to its stats."""
+    stats.add_terms(rep)
+    stats.energy_start += rep.energies[0] if rep.energies else 0.0
+    stats.energy_end += rep.energies[-1] if rep.energies else 0.0
+    stats.iterations += rep.iterations
+
+
 class _Timer:
     def __init__(self, stats: StageStats):
         self.stats = stats
@@ -187,12 +200,59 @@ class _Timer:
 
 @dataclass
 class ChunkResult:
-    betas: np.ndarray  # (P, 16)
-    pose: np.ndarray  # (P, T, 55, 3) axis-angle
-    transl: np.ndarray  # (P, T, 3)
+    """One chunk's fit: the final solver state, the frames observed (P, T) and the state after
+    each stage (stage name -> State, the first is the stage-2 state with unobserved frames filled)."""
+
+    state: State
     observed: np.ndarray  # (P, T)
     stats: dict[str, StageStats]
-    snapshots: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # stage -> (pose, transl)
+    snapshots: dict[str, State] = field(default_factory=dict)
+
+    @property
+    def betas(self) -> np.ndarray:
+        return self.state.betas.numpy().copy()  # (P, B)
+
+
+def axis_angle(st: State) -> tuple[np.ndarray, np.ndarray]:
+    """A state's pose as axis-angle (P, T, 55, 3) and its translation (P, T, 3), float64 arrays."""
+    return so3_log(st.rot).numpy(), st.transl.numpy().copy()
+
+
+def fill_unobserved(st: State, observed: np.ndarray) -> State:
+    """Frames nobody saw well (observed (P, T) False): pose (as axis-angle) and translation
+    interpolated per parameter from the nearest observed frames; a new state."""
+    out = st.clone()
+    P, T = observed.shape
+    t = np.arange(T)
+    for p in range(P):
+        good = np.flatnonzero(observed[p])
+        if len(good) == 0 or len(good) == T:
+            continue
+        pose = so3_log(st.rot[p]).numpy()  # (T, 55, 3)
+        transl = st.transl[p].numpy().copy()  # (T, 3)
+        for arr in (pose, transl):
+            flat = arr.reshape(T, -1)
+            for j in range(flat.shape[1]):  # per parameter column (not per landmark)
+                flat[:, j] = np.interp(t, good, flat[good, j])
+        bad = torch.as_tensor(~observed[p])
+        out.rot[p, bad] = so3_exp(torch.as_tensor(pose[bad.numpy()], dtype=DTYPE))
+        out.transl[p] = torch.as_tensor(transl, dtype=DTYPE)
+    return out
+
+
+def cross_fade_weights(chunks: list[tuple[int, int]], ci: int) -> np.ndarray:
+    """Weights (e - s,) of chunk ci's frames: 1, ramping down where it overlaps a neighbour."""
+    s, e = chunks[ci]
+    w = np.ones(e - s)
+    if ci > 0:
+        ov = chunks[ci - 1][1] - s
+        if ov > 0:
+            w[:ov] = np.linspace(0, 1, ov + 2)[1:-1]
+    if ci < len(chunks) - 1:
+        ov = e - chunks[ci + 1][0]
+        if ov > 0:
+            w[-ov:] = np.linspace(1, 0, ov + 2)[1:-1]
+    return w
 
 
 class Fitter:
@@ -220,7 +280,7 @@ class Fitter:
             self.kp_rigid = rigid
             self.kp = True
 
-    # ---- one chunk --------------------------------------------------------------------
+    # ---- observations -------------------------------------------------------------------
     def _lm_vis(self, d: FitData) -> np.ndarray:
         return d.vis if self.cfg.landmark_weight == 1 else d.vis * np.float32(self.cfg.landmark_weight)
 
@@ -245,12 +305,18 @@ class Fitter:
                                          torch.as_tensor(self.keypoint_weights(d))))
 
     def observed(self, d: FitData) -> np.ndarray:
-        seen = self._lm_vis(d).sum(-1) > 20  # (C, P, T)
+        """(P, T): frames that at least ``min_views`` views see the person in (see MIN_VISIBLE_*)."""
+        seen = self._lm_vis(d).sum(-1) > MIN_VISIBLE_LANDMARKS  # (C, P, T)
         if self.kp is not None:  # a view with a dozen visible keypoints sees the person too
-            seen |= (d.kp_vis > 0.5).sum(-1) >= 12
+            seen |= (d.kp_vis > 0.5).sum(-1) >= MIN_VISIBLE_KEYPOINTS
         return seen.sum(0) >= min(self.cfg.min_views, len(d.rig))
 
+    # ---- init and stage 1 ---------------------------------------------------------------
     def initial_state(self, d: FitData) -> tuple[State, dict]:
+        """Rigid start per person and frame (module doc, "init"): the state (zero shape,
+        rest pose, Procrustes root rotation and translation) and what init found: ``ok``
+        (P, T) Procrustes succeeded, ``X`` (P, T, L, 3) triangulated landmarks, ``info``
+        (P, T, L) their information, and shares for the stats."""
         C, P, T, L = d.shape
         vis = self._lm_vis(d)
         _, dirs = finit.rays(d.rig, d.xy)
@@ -284,15 +350,12 @@ class Fitter:
                     points: PointSet | None = None) -> State:
         """Frames without a Procrustes orientation: stage 1 from ``n`` headings about the
         vertical, keeping per person and frame the one with the lowest energy."""
-        from mamma_kit.fitting.kinematics import so3_exp
-
         frames = np.flatnonzero((~ok).any(0))
-        sub = Obs(obs.xy[:, :, frames], obs.sigma[:, :, frames], obs.w[:, :, frames])
-        gn = GaussNewton(self.kin_s1, self.cams, sub,
+        gn = GaussNewton(self.kin_s1, self.cams, obs.frames(frames),
                          GNConfig(**{**gcfg.__dict__, "iterations": max(4, gcfg.iterations // 2)}),
                          None if points is None else points.frames(torch.as_tensor(frames)))
         best_E, best = None, None
-        base = State(st.betas, st.rot[:, frames].clone(), st.transl[:, frames].clone())
+        base = st.frames(frames)
         for k in range(n):
             cand = base.clone()
             Rz = so3_exp(torch.tensor([0.0, 0.0, 2 * math.pi * k / n], dtype=DTYPE))
@@ -312,84 +375,18 @@ class Fitter:
         st.transl[:, frames] = torch.where(bad[..., None], best.transl, st.transl[:, frames])
         return st
 
-    def repose_limbs(self, obs: Obs, st: State, X: np.ndarray, info: np.ndarray,
-                     points: PointSet | None = None) -> tuple[State, dict]:
-        """Arms, hands and fingers re-posed from their own evidence after a first stage 2 (issue 20).
-
-        A hand that stage 2 left in a wrong minimum (palm turned 90-180 degrees) stays there:
-        its landmarks are outliers to the final robust scale. Per person, frame and chain
-        (ARM_ROOTS, the wrists, FINGER_ROOTS: the joint and all below it) this tries (a) the world orientation of its triangulated palm landmarks
-        (init.hand_orientations) with straight fingers, (b) the hand pose (wrist and finger
-        rotations relative to the forearm; for an arm or a finger, its chain's) of the frames
-        1, 2, 4, ... away (a hand seen well in one frame is a start for its neighbours seen by
-        one camera only), and keeps a candidate where it lowers the chain's robust reprojection
-        energy at a scale of ``repose_compare_frac`` of the person's height (at the final scale a wrong hand and a
-        candidate not yet refined would both be outliers). Returns the state and the share of
-        hands changed per kind of candidate."""
-        P, T = st.transl.shape[:2]
-        J0, v0 = self.kin.rest(st.betas)
-        W = self.kin.W.numpy()
-        par = self.kin.parents
-        out = st.clone()
-        taken = {"palm": 0.0, "neighbour": 0.0}
-        roots = ARM_ROOTS + finit.HAND_WRISTS + FINGER_ROOTS
-        for w in roots:
-            below = np.flatnonzero(self.kin.sub[w] & (np.arange(self.kin.J) != w))
-            js = np.r_[w, below]
-            chain = np.flatnonzero(self.kin.sub[w])
-            lm = torch.as_tensor(np.isin(W.argmax(1), chain), dtype=torch.float32)
-            pts = None
-            if points is not None:  # the chain's keypoints (elbow, wrist, hand points) judge it too
-                pts = points.with_weight(torch.as_tensor(np.isin(self.kin_kp.W.numpy().argmax(1), chain),
-                                                         dtype=torch.float32))
-            gn = GaussNewton(self.kin, self.cams, obs, GNConfig(active=(0,), landmark_weight=lm,
-                                                                gamma_start=self.cfg.gamma,
-                                                                wide_frac=self.cfg.repose_compare_frac), pts)
-
-            def energy(state: State) -> torch.Tensor:
-                f = self.kin.forward(state.betas, state.rot, state.transl)
-                e = gn.data_terms(f["v"], gn.gamma0, jac=False)
-                if pts is not None:
-                    e = e + gn.point_terms(gn.point_forward(f, state), gn.p_gamma0, jac=False)
-                return e
-
-            def take(cand_rot: torch.Tensor, allowed: torch.Tensor, e_cur: torch.Tensor) -> tuple[torch.Tensor, float]:
-                cand = out.clone()
-                cand.rot[:, :, js] = torch.where(allowed[..., None, None, None], cand_rot, out.rot[:, :, js])
-                e_new = energy(cand)
-                better = allowed & (e_new < e_cur)
-                out.rot[:, :, js] = torch.where(better[..., None, None, None], cand.rot[:, :, js], out.rot[:, :, js])
-                return torch.where(better, e_new, e_cur), float(better.float().mean())
-
-            e_cur = energy(out)
-            if w in finit.HAND_WRISTS:
-                R, ok = finit.hand_orientations(v0.numpy(), J0.numpy(), X, info, finit.palm_landmarks(W, w), w)
-                G = self.kin.forward(out.betas, out.rot, out.transl)["G"]
-                palm = out.rot[:, :, js].clone()
-                palm[:, :, 0] = G[:, :, par[w]].to(DTYPE).transpose(-1, -2) @ torch.as_tensor(R, dtype=DTYPE)
-                palm[:, :, 1:] = torch.eye(3, dtype=DTYPE)
-                e_cur, share = take(palm, torch.as_tensor(ok), e_cur)
-                taken["palm"] += share / len(finit.HAND_WRISTS)
-            shift = 1
-            while shift < T:
-                for sgn in (1, -1):
-                    src = np.clip(np.arange(T) - sgn * shift, 0, T - 1)
-                    allowed = torch.as_tensor(np.abs(src - np.arange(T)) == shift).expand(P, T)
-                    e_cur, share = take(out.rot[:, src][:, :, js], allowed, e_cur)
-                    taken["neighbour"] += share / len(roots)
-                shift *= 2
-        return out, taken
-
-    def stage12(self, d: FitData, betas: np.ndarray | None, stats: dict, stages: int) -> tuple[State, Obs]:
-        cfg = self.cfg
-        obs = self._obs(d)
-        pts = self._points(d)
+    def stage_init(self, d: FitData, betas: np.ndarray | None, stats: dict) -> tuple[State, dict]:
         s0 = stats.setdefault("init", StageStats("init"))
         with _Timer(s0):
             st, info = self.initial_state(d)
             if betas is not None:
                 st.betas = torch.as_tensor(betas, dtype=DTYPE)
         s0.extra.update({k: v for k, v in info.items() if k not in ("ok", "X", "info")})
+        return st, info
+
+    def stage1(self, obs: Obs, pts: PointSet | None, st: State, ok: np.ndarray, stats: dict) -> State:
+        """Root rotation and translation from the rigid parts' landmarks (and keypoints)."""
+        cfg = self.cfg
         s1 = stats.setdefault("stage1", StageStats("stage1"))
         with _Timer(s1):
             rep = GNReport()
@@ -397,179 +394,135 @@ class Fitter:
             sel = torch.as_tensor(self.s1_sel)
             obs1 = Obs(obs.xy[..., sel, :], obs.sigma[..., sel, :], obs.w[..., sel])
             pts1 = None if pts is None else pts.with_weight(self.kp_rigid)
-            if not info["ok"].all():
-                st = self._yaw_starts(obs1, st, info["ok"], gcfg, points=pts1)
-            gn = GaussNewton(self.kin_s1, self.cams, obs1, gcfg, pts1)
-            st, _ = gn.run(st, rep)
-            s1.add_terms(rep)
-            s1.energy_start += rep.energies[0] if rep.energies else 0.0
-            s1.energy_end += rep.energies[-1] if rep.energies else 0.0
-            s1.iterations += rep.iterations
-        if stages < 2:
-            return st, obs
+            if not ok.all():
+                st = self._yaw_starts(obs1, st, ok, gcfg, points=pts1)
+            st, _ = GaussNewton(self.kin_s1, self.cams, obs1, gcfg, pts1).run(st, rep)
+            record_run(s1, rep)
+        return st
+
+    # ---- stage 2 ------------------------------------------------------------------------
+    def stage2(self, obs: Obs, pts: PointSet | None, st: State, info: dict, solve_shape: bool,
+               stats: dict) -> State:
+        """Pose, shape (when ``solve_shape``) and translation; then limbs re-posed and again."""
+        cfg = self.cfg
         s2 = stats.setdefault("stage2", StageStats("stage2"))
         with _Timer(s2):
             rep = GNReport()
             gn = GaussNewton(self.kin, self.cams, obs, GNConfig(
                 active=self.active_all, iterations=cfg.s2_iterations, max_iterations=2 * cfg.s2_iterations,
-                optimize_betas=betas is None,
+                optimize_betas=solve_shape,
                 betas_iterations=cfg.s2_shape_iterations, prior_sigma=cfg.prior_sigma(), gamma_start=30.0,
                 gamma_end=cfg.gamma, wide_frac=cfg.s2_wide_frac), pts)
             st, _ = gn.run(st, rep)
             if cfg.repose_limbs:  # limbs re-posed from their own evidence, then the joint solve again
-                st, taken = self.repose_limbs(obs, st, info["X"], info["info"], pts)
+                st, taken = repose_limbs(self.kin, self.cams, obs, st, info["X"], info["info"], cfg.gamma,
+                                         cfg.repose_compare_frac, pts)
                 for k, v in taken.items():
                     s2.extra[f"reposed_from_{k}"] = s2.extra.get(f"reposed_from_{k}", 0.0) + v
                 gn = GaussNewton(self.kin, self.cams, obs, GNConfig(
                     active=self.active_all, iterations=cfg.s2_iterations, max_iterations=2 * cfg.s2_iterations,
-                    optimize_betas=betas is None, betas_iterations=cfg.s2_shape_iterations,
+                    optimize_betas=solve_shape, betas_iterations=cfg.s2_shape_iterations,
                     prior_sigma=cfg.prior_sigma(), gamma_start=30.0, gamma_end=cfg.gamma,
                     wide_frac=cfg.s2b_wide_frac), pts)
                 st, _ = gn.run(st, rep)
-            s2.add_terms(rep)
-            s2.energy_start += rep.energies[0] if rep.energies else 0.0
-            s2.energy_end += rep.energies[-1] if rep.energies else 0.0
-            s2.iterations += rep.iterations
-        return st, obs
+            record_run(s2, rep)
+        return st
 
-    @staticmethod
-    def fill_unobserved(pose: np.ndarray, transl: np.ndarray, observed: np.ndarray) -> None:
-        """Frames nobody saw well: parameters interpolated from the nearest observed frames."""
-        P, T = observed.shape
-        for p in range(P):
-            good = np.flatnonzero(observed[p])
-            if len(good) == 0 or len(good) == T:
-                continue
-            t = np.arange(T)
-            for arr in (pose[p], transl[p]):
-                flat = arr.reshape(T, -1)
-                for j in range(flat.shape[1]):  # per parameter column (not per landmark)
-                    flat[:, j] = np.interp(t, good, flat[good, j])
-
-    def fit_chunk(self, d: FitData, betas: np.ndarray | None = None, stages: int | None = None) -> ChunkResult:
+    # ---- stages 3 and 4 -----------------------------------------------------------------
+    def stage3(self, d: FitData, obs: Obs, st: State, stats: dict) -> tuple[State, Obs]:
+        """Sigma rescaled by stage 2's agreement, with the joint-acceleration term. Returns the
+        state and the rescaled observations (stage 4 keeps them)."""
         cfg = self.cfg
-        stages = cfg.stages if stages is None else stages
-        stats: dict[str, StageStats] = {}
-        st, obs = self.stage12(d, betas, stats, stages)
-        pose = so3_log(st.rot).numpy()
-        transl = st.transl.numpy().copy()
-        observed = self.observed(d)
-        self.fill_unobserved(pose, transl, observed)
-        betas_out = st.betas.numpy().copy()
-        snaps = {f"stage{min(stages, 2)}": (pose.copy(), transl.copy())}
-        if stages >= 3 and d.shape[2] >= 3:
-            pose, transl = self.stage34(d, obs, pose, transl, betas_out, stats, stages, snaps)
-        return ChunkResult(betas_out, pose, transl, observed, stats, snaps)
-
-    # ---- stages 3 and 4 ----------------------------------------------------------------
-    def stage34(self, d: FitData, obs: Obs, pose: np.ndarray, transl: np.ndarray, betas: np.ndarray,
-                stats: dict, stages: int, snaps: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-        cfg = self.cfg
-        act = np.asarray(self.active_all)
-        betas_t = torch.as_tensor(betas, dtype=torch.float32)
-        pose_fixed = torch.as_tensor(pose, dtype=torch.float32)
         s3 = stats.setdefault("stage3", StageStats("stage3"))
         with _Timer(s3):
             # sigma rescaled by the reprojection evidence of stage 2: where a landmark already
             # agrees with the body better than tau, its sigma shrinks in proportion (down to lo)
-            reproj0 = ReprojectionEnergy(self.cams, obs.xy, obs.sigma, obs.w, cfg.gamma)
-            with torch.no_grad():
-                v0, _ = pose_restricted(self.model, pose_dict(pose_fixed, torch.as_tensor(transl, dtype=torch.float32),
-                                                              betas_t))
-                e, _ = reproj0.pixel_errors(v0)
+            e, _ = pixel_errors(self.cams, obs.xy, self.kin.forward(st.betas, st.rot, st.transl).v)
             scale = rescale_sigma(e, obs.w, obs.sigma.mean(-1), self.tau.reshape(-1, 1, 1, 1), cfg.rescale_lo,
                                   cfg.rescale_floor_frac)
             obs3 = Obs(obs.xy, obs.sigma * scale[..., None].to(obs.sigma.dtype), obs.w)
-            from mamma_kit.fitting.kinematics import so3_exp
-
-            st = State(torch.as_tensor(betas, dtype=DTYPE), so3_exp(torch.as_tensor(pose, dtype=DTYPE)),
-                       torch.as_tensor(transl, dtype=DTYPE))
             rep = GNReport()
             gn = GaussNewton(self.kin, self.cams, obs3, GNConfig(
                 active=self.active_all, iterations=cfg.s3_iterations, prior_sigma=cfg.prior_sigma(),
                 gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
                 accel_sigma=cfg.accel_sigma, tol=1e-6), self._points(d))
             st, _ = gn.run(st, rep)
-            s3.add_terms(rep)
-            pose = so3_log(st.rot).numpy()
-            transl = st.transl.numpy().copy()
-            s3.energy_start += rep.energies[0] if rep.energies else 0.0
-            s3.energy_end += rep.energies[-1] if rep.energies else 0.0
-            s3.iterations += rep.iterations
+            record_run(s3, rep)
             s3.extra["sigma_rescaled_frac"] = s3.extra.get("sigma_rescaled_frac", 0.0) + float(
                 ((scale < 1) & (obs.w > 0)).float().sum() / (obs.w > 0).float().sum().clamp(min=1))
-        pose_fixed = torch.as_tensor(pose, dtype=torch.float32)
-        if snaps is not None:
-            snaps["stage3"] = (pose.copy(), transl.copy())
-        if stages < 4 or (d.shape[1] < 2 and not cfg.floor):
-            return pose, transl
-        s4 = stats.setdefault("stage4", StageStats("stage4"))
-        with _Timer(s4):
-            st = self._stage4(d, obs3, st, s4)
-        pose = so3_log(st.rot).numpy()
-        transl = st.transl.numpy().copy()
-        if snaps is not None:
-            snaps["stage4"] = (pose.copy(), transl.copy())
-        return pose, transl
+        return st, obs3
 
-    def _stage4(self, d: FitData, obs3: Obs, st: State, s4: StageStats) -> State:
+    def _contact_terms(self, d: FitData, st: State, s4: StageStats) -> ContactTerms | None:
+        """Contact terms on the frames whose people's boxes intersect (None: no such frame)."""
+        T = d.shape[2]
+        w_con = torch.as_tensor(contact_weights(d.contact, d.present, self.cfg.contact), dtype=torch.float32)
+        ct = ContactTerms(self.model, self.cfg.contact, np.arange(T), w_con, self.active_all)
+        frames = ct.contact_frames(self.kin.forward(st.betas, st.rot, st.transl), st.betas, st.transl)
+        s4.extra["contact_frames"] = s4.extra.get("contact_frames", 0) + int(len(frames))
+        if not len(frames):
+            return None
+        ct.use_frames(frames)
+        return ct
+
+    def _floor_terms(self, d: FitData) -> FloorTerms:
+        cfg = self.cfg
+        foot = np.flatnonzero(np.isin(self.kin.part, [sk.PART_NAMES.index(p) for p in FOOT_PARTS]))
+        n = d.present.sum(0)
+        pf = (d.floor * d.present[..., None]).sum(0) / np.maximum(n, 1)[..., None]
+        wf = torch.as_tensor(np.clip((pf - cfg.contact.p_lo) / cfg.contact.p_span, 0, 1), dtype=torch.float32)
+        return FloorTerms(self.kin, foot, wf, cfg.floor_sigma, self.active_all)
+
+    def stage4(self, d: FitData, obs3: Obs, st: State, stats: dict) -> State:
         """Contact (contact.ContactTerms) on top of stage 3's energy, on the frames whose
         people's boxes intersect, and optionally the floor (contact.FloorTerms); Gauss-Newton
         with every person's step accepted together (contact couples them)."""
-        from mamma_kit.fitting.contact import ContactTerms, FloorTerms, Terms
-
         cfg = self.cfg
-        C, P, T, L = d.shape
-        f = self.kin.forward(st.betas, st.rot, st.transl)
-        parts: list = []
-        ct = None
-        if P >= 2:
-            probe = ContactTerms(self.model, cfg.contact, np.arange(T), torch.zeros(P, T, L), self.active_all)
-            with torch.no_grad():
-                pv, _ = probe._all_points(f, st.betas, st.transl)
-            frames = np.flatnonzero(ContactModel.gate(pv[:, :, :probe.Np], margin=cfg.contact.margin))
-            s4.extra["contact_frames"] = s4.extra.get("contact_frames", 0) + int(len(frames))
-            if len(frames):
-                w_con = torch.as_tensor(contact_weights(d.contact, d.present, cfg.contact), dtype=torch.float32)
-                ct = ContactTerms(self.model, cfg.contact, frames, w_con, self.active_all)
-                parts.append(ct)
-        if cfg.floor:
-            foot = np.flatnonzero(np.isin(self.kin.part, [sk.PART_NAMES.index(p) for p in ("left_foot", "right_foot")]))
-            n = d.present.sum(0)
-            pf = (d.floor * d.present[..., None]).sum(0) / np.maximum(n, 1)[..., None]
-            wf = torch.as_tensor(np.clip((pf - cfg.contact.p_lo) / cfg.contact.p_span, 0, 1), dtype=torch.float32)
-            parts.append(FloorTerms(self.kin, foot, wf, cfg.floor_sigma, self.active_all))
-        if not parts:
-            return st
-        rep = GNReport()
-        gn = GaussNewton(self.kin, self.cams, obs3, GNConfig(
-            active=self.active_all, iterations=cfg.s4_iterations, prior_sigma=cfg.prior_sigma(),
-            gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
-            accel_sigma=cfg.accel_sigma, tol=1e-6, extra=Terms(parts), mu0=0.1, max_step=(0.05, 0.01)),
-            self._points(d))
-        if ct is not None:  # count the first refresh's penetrating points (GN's first iteration makes it)
-            _first = ct.refresh
-
-            def refresh_and_count(*a, **k):
-                _first(*a, **k)
-                if "inside_points_start" not in s4.extra or ct._calls == 0:
-                    ct.evaluate(*a[:3], jac=False)
-                    s4.extra["inside_points_start"] = ct.stats["inside_points"]
-            ct.refresh = refresh_and_count
-        st, _ = gn.run(st, rep)
-        if ct is not None:
-            f = self.kin.forward(st.betas, st.rot, st.transl)
-            ct.refresh(f, st.betas, st.transl, force=True)
-            ct.evaluate(f, st.betas, st.transl, jac=False)
-            s4.extra["inside_points_end"] = s4.extra.get("inside_points_end", 0) + ct.stats["inside_points"]
-        s4.add_terms(rep)
-        s4.energy_start += rep.energies[0] if rep.energies else 0.0
-        s4.energy_end += rep.energies[-1] if rep.energies else 0.0
-        s4.iterations += rep.iterations
-        s4.extra["accepted_steps"] = s4.extra.get("accepted_steps", 0) + int(sum(a > 0 for a in rep.accepted))
+        s4 = stats.setdefault("stage4", StageStats("stage4"))
+        with _Timer(s4):
+            ct = self._contact_terms(d, st, s4) if d.shape[1] >= 2 else None
+            parts = ([ct] if ct is not None else []) + ([self._floor_terms(d)] if cfg.floor else [])
+            if not parts:
+                return st
+            rep = GNReport()
+            gn = GaussNewton(self.kin, self.cams, obs3, GNConfig(
+                active=self.active_all, iterations=cfg.s4_iterations, prior_sigma=cfg.prior_sigma(),
+                gamma_start=cfg.gamma, gamma_end=cfg.gamma, temporal_times=d.frame_times,
+                accel_sigma=cfg.accel_sigma, tol=1e-6, extra=Terms(parts), mu0=0.1, max_step=(0.05, 0.01)),
+                self._points(d))
+            st, _ = gn.run(st, rep)
+            if ct is not None:  # penetrating points at the stage's first and final states
+                if ct.inside_points_first is not None:
+                    s4.extra["inside_points_start"] = s4.extra.get("inside_points_start", 0) + ct.inside_points_first
+                f = self.kin.forward(st.betas, st.rot, st.transl)
+                ct.refresh(f, st.betas, st.transl, force=True)
+                ct.evaluate(f, st.betas, st.transl, jac=False)
+                s4.extra["inside_points_end"] = s4.extra.get("inside_points_end", 0) + ct.stats["inside_points"]
+            record_run(s4, rep)
+            s4.extra["accepted_steps"] = s4.extra.get("accepted_steps", 0) + int(sum(a > 0 for a in rep.accepted))
         return st
 
-    # ---- whole sequence ---------------------------------------------------------------
+    # ---- one chunk ----------------------------------------------------------------------
+    def fit_chunk(self, d: FitData, betas: np.ndarray | None = None, stages: int | None = None) -> ChunkResult:
+        """The stages on one chunk's frames (``betas`` (P, B): the shape, fixed; None: solved)."""
+        stages = self.cfg.stages if stages is None else stages
+        stats: dict[str, StageStats] = {}
+        obs, pts = self._obs(d), self._points(d)
+        st, info = self.stage_init(d, betas, stats)
+        st = self.stage1(obs, pts, st, info["ok"], stats)
+        if stages >= 2:
+            st = self.stage2(obs, pts, st, info, betas is None, stats)
+        observed = self.observed(d)
+        st = fill_unobserved(st, observed)
+        snaps = {f"stage{min(stages, 2)}": st}
+        if stages >= 3 and d.shape[2] >= 3:
+            st, obs3 = self.stage3(d, obs, st, stats)
+            snaps["stage3"] = st
+            if stages >= 4 and (d.shape[1] >= 2 or self.cfg.floor):
+                st = self.stage4(d, obs3, st, stats)
+                snaps["stage4"] = st
+        return ChunkResult(st, observed, stats, snaps)
+
+    # ---- whole sequence -----------------------------------------------------------------
     def plan_chunks(self, T: int) -> list[tuple[int, int]]:
         size, ov = max(self.cfg.chunk, 8), min(self.cfg.overlap, max(self.cfg.chunk // 2, 0))
         if T <= size:
@@ -579,6 +532,8 @@ class Fitter:
         return [(int(s), int(s) + size) for s in starts]
 
     def fit(self) -> "FitResult":
+        """Every chunk fitted (one shape per person: from frames spread over the sequence
+        when there are several chunks), cross-faded as axis-angle where chunks overlap."""
         d = self.data
         C, P, T, L = d.shape
         chunks = self.plan_chunks(T)
@@ -599,21 +554,13 @@ class Fitter:
             r = self.fit_chunk(d.slice_frames(slice(s, e)), betas)
             if betas is None:
                 betas = r.betas
-            w = np.ones(e - s)
-            if ci > 0:  # cross-fade with the previous chunk where they overlap
-                ov = chunks[ci - 1][1] - s
-                if ov > 0:
-                    w[:ov] = np.linspace(0, 1, ov + 2)[1:-1]
-            if ci < len(chunks) - 1:
-                ov = e - chunks[ci + 1][0]
-                if ov > 0:
-                    w[-ov:] = np.linspace(1, 0, ov + 2)[1:-1]
-            pose[:, s:e] += r.pose * w[None, :, None, None]
-            transl[:, s:e] += r.transl * w[None, :, None]
-            for k, (sp, stl) in r.snapshots.items():
-                acc = snaps.setdefault(k, [np.zeros_like(pose), np.zeros_like(transl)])
-                acc[0][:, s:e] += sp * w[None, :, None, None]
-                acc[1][:, s:e] += stl * w[None, :, None]
+            w = cross_fade_weights(chunks, ci)
+            for key, st in [(None, r.state), *r.snapshots.items()]:
+                acc = [pose, transl] if key is None else snaps.setdefault(key, [np.zeros_like(pose),
+                                                                               np.zeros_like(transl)])
+                pose_c, transl_c = axis_angle(st)
+                acc[0][:, s:e] += pose_c * w[None, :, None, None]
+                acc[1][:, s:e] += transl_c * w[None, :, None]
             wsum[s:e] += w
             observed[:, s:e] |= r.observed
             for k, st in r.stats.items():
@@ -641,7 +588,7 @@ class FitResult:
     observed: np.ndarray  # (P, T)
     stats: dict[str, StageStats]
     chunks: list[tuple[int, int]]
-    snapshots: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # after each stage
+    snapshots: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # stage -> (pose, transl)
 
     def params(self, p: int, stage: str | None = None) -> dict[str, np.ndarray]:
         """SMPL-X parameter dict of person index p (T frames); ``stage`` ("stage2", ...)
