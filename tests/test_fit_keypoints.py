@@ -261,7 +261,9 @@ def test_fit_without_keypoints_is_unchanged_and_says_so(body, tmp_path):
         lt.contact[:] = 0.0
         lt.floor_contact[:] = 0.0
         lt.save(ws.landmarks_file(c.name))
-    rep = fit_workspace(ws, stages=2)
+    cfg = FitConfig()
+    rep = fit_workspace(ws, stages=2, config=cfg)
+    assert cfg.stages == 4  # the caller's config is not changed (dataclasses.replace)
     assert rep["keypoints"] == {"used": False, "why": "no keypoints/<cam>.npz"}
     assert any("keypoint energy is off" in n for n in rep["notes"])
     assert "keypoints" not in rep["stage_stats"]["stage2"]["energy_terms"] or \

@@ -272,6 +272,36 @@ def test_contact_model_signs_match_exact_signed_distance(body):
     assert e["repulsion"] > 0 and e["inside_points"] > 50
 
 
+def test_contact_terms_gate_frames_and_record_the_first_refresh(body):
+    """ContactTerms' public pieces that stage 4 uses: ``contact_frames`` keeps the frames whose
+    bodies' boxes meet, ``refresh`` re-pairs every ``refresh_every`` calls and records the
+    penetrating points of its first call in ``inside_points_first``."""
+    from mamma_kit.body.lbs import UPRIGHT_ORIENT
+    from mamma_kit.fitting.contact import ContactConfig, ContactTerms
+    from mamma_kit.fitting.kinematics import DTYPE, BodyKinematics, so3_exp
+
+    kin = BodyKinematics(body)
+    P, T = 2, 2
+    rot = torch.eye(3, dtype=DTYPE).repeat(P, T, 55, 1, 1)
+    rot[:, :, 0] = so3_exp(torch.as_tensor(UPRIGHT_ORIENT, dtype=DTYPE))
+    transl = torch.tensor([[[0.0, 0.0, 0.9]] * T, [[0.06, -0.12, 0.9], [3.0, 0.0, 0.9]]], dtype=DTYPE)
+    betas = torch.zeros(P, kin.shapedirs.shape[-1], dtype=DTYPE)
+    f = kin.forward(betas, rot, transl)
+    active = tuple(range(22))
+    ct = ContactTerms(body, ContactConfig(), np.arange(T), torch.zeros(P, T, len(body.landmark_ids)), active)
+    frames = ct.contact_frames(f, betas, transl)
+    assert frames.tolist() == [0]  # frame 1: the second body 3 m away
+    ct.use_frames(frames)
+    assert ct.inside_points_first is None
+    ct.refresh(f, betas, transl)
+    first = ct.inside_points_first
+    assert first is not None and first > 50 and ct.refreshes == 1
+    sets = ct.sets
+    ct.refresh(f, betas, transl)  # refresh_every = 2: the active set is kept
+    assert ct.sets is sets and ct.inside_points_first == first
+    assert float(ct.evaluate(f, betas, transl, jac=False)) > 0
+
+
 def test_parse_stages():
     from mamma_kit.cli.fit import parse_stages
 
