@@ -5,6 +5,7 @@ which board it does show); per-camera intrinsics from selected views; still-boar
 matched across cameras (clock offsets found from the runs themselves unless a timing
 model is given); a pose graph for initial extrinsics; bundle adjustment over all cameras,
 still-board events and intrinsic views; the world frame from the board on the floor.
+``calibrate()`` is that recipe; each step is one function below it, in the same order.
 """
 
 from __future__ import annotations
@@ -22,11 +23,11 @@ from mamma_kit.calibration.clocks import SharedClock, shared_clock_from_videos
 from mamma_kit.calibration.bundle import (BundleResult, bundle_adjust, check_connected, event_poses,
                                           init_extrinsics, pair_graph)
 from mamma_kit.calibration.detect import MIN_CORNERS, Detections, detect_video, diagnose_board
-from mamma_kit.calibration.intrinsics import IntrinsicResult, calibrate_camera, cross_validate, tilt_of
+from mamma_kit.calibration.intrinsics import IntrinsicResult, calibrate_camera, cross_validate
 from mamma_kit.calibration.world import find_floor, up_guess, world_from_camera, world_from_floor
 from mamma_kit.core import log
 from mamma_kit.core.executor import default_workers, run_units
-from mamma_kit.core.camera import Camera, Rig, rotvec
+from mamma_kit.core.camera import Camera, Rig
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
 
@@ -99,7 +100,52 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     st = settings or Settings()
     names = list(videos)
     t_start = time.perf_counter()
-    warnings: list[str] = []
+    _check_inputs(names, intrinsics, intrinsics_src, clocks)
+    # 1. detection
+    dets = _detect_boards(videos, spec, st, detections, cache_dir, progress)
+    t_detect = time.perf_counter() - t_start
+    clocks, timing_note = _shared_clocks(names, dets, clocks, shared_clock)
+    # 2. intrinsics
+    intr, fixed = _intrinsics(names, dets, spec, st, intrinsics, intrinsics_src)
+    cams0 = {n: intr[n].camera for n in names}
+    # 3. still runs and offsets
+    runs = {n: assoc.still_runs(dets[n], st.still_px) for n in names}
+    for n in names:
+        assoc.pose_runs(runs[n], cams0[n], spec)
+    offsets = _board_offsets(names, runs, st) if clocks is None else {}
+    events = _events(names, dets, runs, offsets, clocks, intr, st)
+    # 4. pose graph
+    events, poses = _posed_events(cams0, spec, events)
+    graph = pair_graph(names, poses)
+    _check_connected(names, graph, intr, dets, runs, st, clocks)
+    reference, cams_init, ev_R, ev_t = _initial_extrinsics(names, graph, cams0, events, poses)
+    # 5. bundle adjustment
+    log.info(f"bundle adjustment: {len(names)} cameras, {len(events)} board poses "
+             f"({sum(len(ev.obs) > 1 for ev in events)} seen by several cameras)")
+    t_ba = time.perf_counter()
+    ba = bundle_adjust(cams_init, fixed, reference, spec, events, ev_R, ev_t)
+    t_ba = time.perf_counter() - t_ba
+    rig_ref = Rig([ba.cameras[n] for n in names])
+    # 6. world frame
+    R_w, t_w, world, warnings = _world_frame(rig_ref, ba, events, spec, st, names)
+    rig = rig_ref.transformed(R_w, t_w)
+    # 7. diagnostics
+    cv = {n: cross_validate(dets[n], spec, intr[n], st.model) if st.cross_validation and n not in fixed else None
+          for n in names}
+    cam_diag = {n: _camera_diagnostics(k, n, ba, events, intr[n], dets[n], videos[n], fixed, cv[n],
+                                       offsets.get(n) if clocks is None else None)
+                for k, n in enumerate(names)}
+    seconds = {"detect": round(t_detect, 2), "bundle": round(t_ba, 2), "total": round(time.perf_counter() - t_start, 2)}
+    diag = _rig_diagnostics(ba, st, spec, reference, world, events, graph,
+                            timing_note or ("estimated from still boards" if len(names) > 1 else "single"), seconds)
+    _warn_high_rms(diag, warnings)
+    return CalibrationResult(rig, _finite(diag), _finite(cam_diag), dets, intr, events, ba, cv, R_w, t_w, warnings,
+                             {k: int(e["n_agree"]) for k, e in graph.items()})
+
+
+def _check_inputs(names: list[str], intrinsics: Rig | None, intrinsics_src: str,
+                  clocks: dict[str, ClockModel] | None) -> None:
+    """Fail before any work on inputs calibrate cannot use."""
     if len(names) < 1:
         raise UserError("no board videos given", "pass one board video per camera")
     if intrinsics is not None:
@@ -116,7 +162,13 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
         if missing:
             raise UserError(f"the timing model has no clock for {', '.join(missing)}",
                             "sync these board videos first or calibrate without a timing model")
-    # 1. detection
+
+
+def _detect_boards(videos: dict[str, Path], spec: BoardSpec, st: Settings, detections: dict[str, Detections] | None,
+                   cache_dir: Path | None, progress: bool) -> dict[str, Detections]:
+    """The board in every video (``detections`` given are kept; the rest found, in parallel when
+    there are workers); a camera with too few views gets the reason (most often another board)."""
+    names = list(videos)
     dets: dict[str, Detections] = dict(detections or {})
     todo = [n for n in names if n not in dets]
     workers = default_workers(len(todo), st.workers)
@@ -144,8 +196,14 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
             log.info(f"{n}: {Path(videos[n]).name} asks to be displayed rotated by {dets[n].rotation_deg} degrees; "
                      f"calibrated as its frames are stored ({dets[n].size[0]}x{dets[n].size[1]}), as every "
                      f"mamma-kit stage reads them")
-    t_detect = time.perf_counter() - t_start
-    # shared clocks: a timestamps file, else the videos' own absolute frame timestamps
+    return dets
+
+
+def _shared_clocks(names: list[str], dets: dict[str, Detections], clocks: dict[str, ClockModel] | None,
+                   shared_clock: SharedClock | None) -> tuple[dict[str, ClockModel] | None, str | None]:
+    """The clocks to match board frames with, and how they were known (None: find offsets from
+    the still boards). A timestamps file, else the videos' own absolute frame timestamps, puts
+    every camera on one clock: then ``dets`` get those frame times (edited in place)."""
     timing_note = None
     if clocks is not None:
         timing_note = "synced (--synced)" if all(c.source == "synced" for c in clocks.values()) else "given"
@@ -164,7 +222,13 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
             timing_note = shared_clock.detail
             log.info(f"calibrate: {shared_clock.detail}: moving-board frames are matched across cameras "
                      f"(no --synced needed)")
-    # 2. intrinsics
+    return clocks, timing_note
+
+
+def _intrinsics(names: list[str], dets: dict[str, Detections], spec: BoardSpec, st: Settings,
+                intrinsics: Rig | None, intrinsics_src: str) -> tuple[dict[str, IntrinsicResult], set[str]]:
+    """Per camera intrinsics from its views, or the given ones (scaled to the video) kept fixed;
+    returns them and the names of the fixed cameras. All cameras must share one lens model."""
     intr: dict[str, IntrinsicResult] = {}
     fixed: set[str] = set()
     for n in names:
@@ -182,25 +246,31 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     if len(models) > 1:
         raise UserError(f"cameras use different lens models ({', '.join(sorted(models))})",
                         f"use --model {intr[names[0]].camera.model} or an --intrinsics file with one model")
-    cams0 = {n: intr[n].camera for n in names}
-    # 3. still runs and offsets
-    runs = {n: assoc.still_runs(dets[n], st.still_px) for n in names}
-    for n in names:
-        assoc.pose_runs(runs[n], cams0[n], spec)
-    offsets: dict[str, float] = {}
+    return intr, fixed
+
+
+def _board_offsets(names: list[str], runs: dict[str, list], st: Settings) -> dict[str, float]:
+    """Clock offsets (s) per camera from still-board runs the pairs share, relative to the first
+    camera of the largest connected group (no timing model)."""
+    if len(names) == 1:
+        return {names[0]: 0.0}
     pair_off: dict[tuple[str, str], tuple[float, int]] = {}
-    if clocks is None and len(names) > 1:
-        for i, a in enumerate(names):
-            for b in names[i + 1:]:
-                r = assoc.pair_offset(runs[a], runs[b], st.max_offset_s)
-                if r is not None and r[1] >= st.min_shared:
-                    pair_off[(a, b)] = (r[0], r[1])
-        comps = assoc.components(names, list(pair_off))
-        main = max(comps, key=len)
-        reference = main[0]
-        offsets, _ = assoc.solve_offsets(names, pair_off, reference)
-    elif clocks is None:
-        offsets = {names[0]: 0.0}
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            r = assoc.pair_offset(runs[a], runs[b], st.max_offset_s)
+            if r is not None and r[1] >= st.min_shared:
+                pair_off[(a, b)] = (r[0], r[1])
+    comps = assoc.components(names, list(pair_off))
+    main = max(comps, key=len)
+    offsets, _ = assoc.solve_offsets(names, pair_off, main[0])
+    return offsets
+
+
+def _events(names: list[str], dets: dict[str, Detections], runs: dict[str, list], offsets: dict[str, float],
+            clocks: dict[str, ClockModel] | None, intr: dict[str, IntrinsicResult], st: Settings) -> list:
+    """The board poses to solve for: still holds matched across cameras, moving frames matched
+    on a known clock, and each camera's intrinsic views not already inside a hold; observations
+    with too few corners to pose are dropped."""
     margin = st.offset_margin_s if clocks is None else 0.0
     events = assoc.build_events(dets, runs, offsets, clocks, margin)
     if clocks is not None and st.sync_tol_s > 0:
@@ -218,8 +288,12 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
     # drop observations too thin to pose
     for ev in events:
         ev.obs = {c: xy for c, xy in ev.obs.items() if np.isfinite(xy[:, 0]).sum() >= MIN_CORNERS}
-    events = [ev for ev in events if ev.obs]
-    # 4. pose graph
+    return [ev for ev in events if ev.obs]
+
+
+def _posed_events(cams0: dict[str, Camera], spec: BoardSpec, events: list) -> tuple[list, list[dict]]:
+    """The board's pose in each camera of each event; events no camera can pose are dropped,
+    and so are the observations of cameras that cannot pose theirs."""
     poses = event_poses(cams0, spec, events)
     keep = [i for i, p in enumerate(poses) if any(v is not None for v in p.values())]
     events = [events[i] for i in keep]
@@ -229,20 +303,34 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
         for c in bad:
             ev.obs.pop(c)
             p.pop(c)
-    graph = pair_graph(names, poses)
+    return events, poses
+
+
+def _check_connected(names: list[str], graph: dict, intr: dict[str, IntrinsicResult], dets: dict[str, Detections],
+                     runs: dict[str, list], st: Settings, clocks: dict[str, ClockModel] | None) -> None:
+    """Every camera must share enough still boards with the rest; without known clocks the
+    error says what the user can do about it."""
+    if len(names) <= 1:
+        return
     counts = {n: len(intr[n].views) for n in names}
-    if len(names) > 1:
-        try:
-            check_connected(names, graph, counts, st.min_shared, near=_near_partner(names, graph, dets, runs))
-        except UserError as e:
-            if clocks is not None:
-                raise
-            holds = ", ".join(f"{n}: {len(runs[n])}" for n in names)
-            raise UserError(f"{e.message}: too few still holds are shared (still holds per camera {holds}) and the "
-                            f"videos' clocks are unknown (no timestamps file beside them, frame timestamps not on "
-                            f"one clock)",
-                            f"if the cameras were synchronised pass --synced (or --timestamps FILE); if not, sync "
-                            f"the board videos and pass --timing timing.toml, or {e.hint}") from None
+    try:
+        check_connected(names, graph, counts, st.min_shared, near=_near_partner(names, graph, dets, runs))
+    except UserError as e:
+        if clocks is not None:
+            raise
+        holds = ", ".join(f"{n}: {len(runs[n])}" for n in names)
+        raise UserError(f"{e.message}: too few still holds are shared (still holds per camera {holds}) and the "
+                        f"videos' clocks are unknown (no timestamps file beside them, frame timestamps not on "
+                        f"one clock)",
+                        f"if the cameras were synchronised pass --synced (or --timestamps FILE); if not, sync "
+                        f"the board videos and pass --timing timing.toml, or {e.hint}") from None
+
+
+def _initial_extrinsics(names: list[str], graph: dict, cams0: dict[str, Camera], events: list, poses: list[dict]
+                        ) -> tuple[str, dict[str, Camera], np.ndarray, np.ndarray]:
+    """The reference camera (most agreeing shared views), every camera's pose from the pose
+    graph, and each event's board pose in the reference frame from the camera that sees most
+    of it: (reference, cameras, ev_R (E, 3, 3), ev_t (E, 3))."""
     degree = {n: sum(e["n_agree"] for (a, b), e in graph.items() if n in (a, b)) for n in names}
     reference = max(names, key=lambda n: (degree[n], -names.index(n)))
     init = init_extrinsics(names, graph, reference)
@@ -255,73 +343,73 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
         Rc, tc = init[c]  # x_c = Rc x_ref + tc
         ev_R[e] = Rc.T @ R_cb
         ev_t[e] = Rc.T @ (t_cb - tc)
-    # 5. bundle adjustment
-    log.info(f"bundle adjustment: {len(names)} cameras, {len(events)} board poses "
-             f"({sum(len(ev.obs) > 1 for ev in events)} seen by several cameras)")
-    t_ba = time.perf_counter()
-    ba = bundle_adjust(cams_init, fixed, reference, spec, events, ev_R, ev_t)
-    t_ba = time.perf_counter() - t_ba
-    rig_ref = Rig([ba.cameras[n] for n in names])
-    # 6. world frame
+    return reference, cams_init, ev_R, ev_t
+
+
+def _world_frame(rig_ref: Rig, ba: BundleResult, events: list, spec: BoardSpec, st: Settings, names: list[str]
+                 ) -> tuple[np.ndarray, np.ndarray, dict, list[str]]:
+    """X_world = R_w X_rig + t_w from the board lying still on the floor, else from the first
+    camera with Z up guessed: (R_w (3, 3), t_w (3,), the world's diagnostics, warnings)."""
     still = np.array([ev.kind in ("hold",) for ev in events])
     held = np.array([ev.kind == "hold" and len(ev.obs) > 1 for ev in events])
     centres = np.einsum("eij,j->ei", ba.event_R, spec.center_b3) + ba.event_t
     up, up_src = up_guess(rig_ref, ba.event_R, held)
     floor_k, floor_all = find_floor(ba.event_R, ba.event_t, centres, still, up, rig_ref.centers()) \
         if st.floor else (None, [])
-    world: dict = {}
     if floor_k is not None:
         R_w, t_w, finfo = world_from_floor(ba.event_R, ba.event_t, floor_k, floor_all, spec.corners_b3)
         ev = events[floor_k]
         world = {"source": "floor", "floor_cameras": ev.cameras, "floor_time_s": ev.t_ref,
                  "floor_duration_s": ev.duration, **finfo,
                  "up_vs_guess_deg": float(np.degrees(np.arccos(np.clip(R_w[2] @ up, -1, 1))))}
-    else:
-        R_w, t_w = world_from_camera(rig_ref, up, names[0])
-        msg = (f"no board lying on the floor was found: the world frame is camera {names[0]}'s position with Z up "
-               f"guessed from {up_src}; lay the board flat on the floor, still, for 2 seconds where most cameras see "
-               f"it, to pin the floor at z = 0")
-        log.warn(msg)
-        warnings.append(msg)
-        world = {"source": "first-camera", "camera": names[0], "up_from": up_src}
-    rig = rig_ref.transformed(R_w, t_w)
-    # 7. diagnostics
-    cv = {}
-    for n in names:
-        cv[n] = cross_validate(dets[n], spec, intr[n], st.model) if st.cross_validation and n not in fixed else None
-    cam_diag = {}
-    for k, n in enumerate(names):
-        m = (ba.obs_cam == k)
-        mi = m & ba.inlier
-        res = ba.residual[mi]
-        ev_ids = np.unique(ba.obs_evt[mi])
-        per_view = [float(np.sqrt(np.mean(np.sum(ba.residual[mi & (ba.obs_evt == e)] ** 2, 1)))) for e in ev_ids]
-        shared = int(sum(1 for e in ev_ids if len(events[e].obs) > 1))
-        d = {
-            "rms_px": float(np.sqrt(np.mean(np.sum(res ** 2, 1)))) if len(res) else float("nan"),
-            "intrinsics_rms_px": intr[n].rms_px,
-            "views": int(len(ev_ids)), "shared_views": shared, "intrinsic_views": int(len(intr[n].views)),
-            "corners": int(mi.sum()), "outlier_corners": int((m & ~ba.inlier).sum()),
-            "per_view_rms_px": per_view,
-            "per_view_max_px": float(max(per_view)) if per_view else float("nan"),
-            "coverage": float(intr[n].coverage), "max_tilt_deg": float(intr[n].max_tilt_deg),
-            "intrinsics_fixed": n in fixed,
-            "intrinsics_std": intr[n].std,
-            "bundle_std": ba.std.get(n, {}),
-            "video": str(videos[n]), "size": list(dets[n].size), "rotation_deg": dets[n].rotation_deg,
-            "frames_detected": int((dets[n].n_corners_f >= MIN_CORNERS).sum()),
-            "frames_seen_from_behind": int((dets[n].mirrored_f & (dets[n].n_corners_f >= MIN_CORNERS)).sum()),
-            "frames_sampled": int(len(dets[n].times_f)), "frame_step": int(dets[n].frame_step),
-        }
-        if clocks is None and n in offsets:
-            d["board_clock_offset_s"] = offsets[n]
-        if cv[n] is not None:
-            d["cross_validation_px"] = {k2: cv[n][k2] for k2 in ("median_px", "p95_px", "max_px")}
-        cam_diag[n] = d
-    overall = float(ba.rms_px)
-    pairs = {f"{a}-{b}": int(e["n_agree"]) for (a, b), e in graph.items()}
-    diag = {
-        "rms_px": overall,
+        return R_w, t_w, world, []
+    R_w, t_w = world_from_camera(rig_ref, up, names[0])
+    msg = (f"no board lying on the floor was found: the world frame is camera {names[0]}'s position with Z up "
+           f"guessed from {up_src}; lay the board flat on the floor, still, for 2 seconds where most cameras see "
+           f"it, to pin the floor at z = 0")
+    log.warn(msg)
+    return R_w, t_w, {"source": "first-camera", "camera": names[0], "up_from": up_src}, [msg]
+
+
+def _camera_diagnostics(k: int, n: str, ba: BundleResult, events: list, intr: IntrinsicResult, det: Detections,
+                        video: Path, fixed: set[str], cv: dict | None, board_offset: float | None) -> dict:
+    """Camera ``n`` (index ``k`` in the bundle): residuals after the bundle, views, intrinsics,
+    uncertainties, what was read from its video, its board clock offset and cross-validation."""
+    m = (ba.obs_cam == k)
+    mi = m & ba.inlier
+    res = ba.residual[mi]
+    ev_ids = np.unique(ba.obs_evt[mi])
+    per_view = [float(np.sqrt(np.mean(np.sum(ba.residual[mi & (ba.obs_evt == e)] ** 2, 1)))) for e in ev_ids]
+    shared = int(sum(1 for e in ev_ids if len(events[e].obs) > 1))
+    d = {
+        "rms_px": float(np.sqrt(np.mean(np.sum(res ** 2, 1)))) if len(res) else float("nan"),
+        "intrinsics_rms_px": intr.rms_px,
+        "views": int(len(ev_ids)), "shared_views": shared, "intrinsic_views": int(len(intr.views)),
+        "corners": int(mi.sum()), "outlier_corners": int((m & ~ba.inlier).sum()),
+        "per_view_rms_px": per_view,
+        "per_view_max_px": float(max(per_view)) if per_view else float("nan"),
+        "coverage": float(intr.coverage), "max_tilt_deg": float(intr.max_tilt_deg),
+        "intrinsics_fixed": n in fixed,
+        "intrinsics_std": intr.std,
+        "bundle_std": ba.std.get(n, {}),
+        "video": str(video), "size": list(det.size), "rotation_deg": det.rotation_deg,
+        "frames_detected": int((det.n_corners_f >= MIN_CORNERS).sum()),
+        "frames_seen_from_behind": int((det.mirrored_f & (det.n_corners_f >= MIN_CORNERS)).sum()),
+        "frames_sampled": int(len(det.times_f)), "frame_step": int(det.frame_step),
+    }
+    if board_offset is not None:
+        d["board_clock_offset_s"] = board_offset
+    if cv is not None:
+        d["cross_validation_px"] = {k2: cv[k2] for k2 in ("median_px", "p95_px", "max_px")}
+    return d
+
+
+def _rig_diagnostics(ba: BundleResult, st: Settings, spec: BoardSpec, reference: str, world: dict, events: list,
+                     graph: dict, timing: str, seconds: dict[str, float]) -> dict:
+    """The rig's diagnostics: the bundle's error and observations, the events by kind, the views
+    each camera pair shares, how the clocks were known, the world frame, times and settings."""
+    return {
+        "rms_px": float(ba.rms_px),
         "model": st.model,
         "board": spec.to_dict(),
         "reference_camera": reference,
@@ -330,24 +418,27 @@ def calibrate(videos: dict[str, Path], spec: BoardSpec, settings: Settings | Non
                    "holds": int(sum(ev.kind == "hold" for ev in events)),
                    "sync": int(sum(ev.kind == "sync" for ev in events)),
                    "views": int(sum(ev.kind == "view" for ev in events))},
-        "shared_views": pairs,
-        "timing": timing_note or ("estimated from still boards" if len(names) > 1 else "single"),
+        "shared_views": {f"{a}-{b}": int(e["n_agree"]) for (a, b), e in graph.items()},
+        "timing": timing,
         "observations": int(ba.inlier.sum()), "outliers": int((~ba.inlier).sum()),
         "bundle_rounds": ba.cost_history,
-        "seconds": {"detect": round(t_detect, 2), "bundle": round(t_ba, 2),
-                    "total": round(time.perf_counter() - t_start, 2)},
+        "seconds": seconds,
         "settings": st.to_dict(),
     }
+
+
+def _warn_high_rms(diag: dict, warnings: list[str]) -> None:
+    """Put the warnings in the diagnostics, with one more when the bundle's error is high (most
+    often a board spec whose sizes are not the print's)."""
     if warnings:
         diag["warnings"] = warnings
+    overall = diag["rms_px"]
     if overall > 1.0:
         msg = f"the bundle-adjusted reprojection error is high ({overall:.2f} px): check the board spec's sizes " \
               f"(measure the print) and that the board is flat"
         log.warn(msg)
         warnings.append(msg)
         diag["warnings"] = warnings
-    return CalibrationResult(rig, _finite(diag), _finite(cam_diag), dets, intr, events, ba, cv, R_w, t_w, warnings,
-                             {k: int(e["n_agree"]) for k, e in graph.items()})
 
 
 def _finite(obj):
