@@ -22,6 +22,7 @@ Stage options come from capture.toml, e.g.::
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
     [settings.report]      video = true
+    [settings]             executor = "ray"   ray_address = "HOST:6379"   (core/executor.py; default local)
 
 ``init_workspace`` (`mamma-kit init`) writes that capture.toml for a user's own videos.
 """
@@ -209,15 +210,20 @@ def capture_to_smplx(workspace: str | Path, from_stage: str | None = None, to_st
         stages.insert(stages.index("keypoints") + 1, "sync")
     run = RunSummary(str(ws.root))
     t0 = time.perf_counter()
-    for i, stage in enumerate(stages):
-        log.info(f"[bold]\\[{i + 1}/{len(stages)}] {stage}[/bold]")
-        ts = time.perf_counter()
-        res = run_stage(ws, stage, cap, force=force, progress=progress)
-        secs = time.perf_counter() - ts
-        facts = _key_facts(stage, res)
-        run.stages[stage] = {"status": res["status"], "seconds": round(secs, 2), "reason": res.get("reason", ""),
-                             "facts": facts, "summary": res}
-        log.info(f"    {stage}: {res['status']} in {secs:.1f} s" + (f" - {facts}" if facts else ""))
+    from mamma_kit.core.executor import executor_for_run
+
+    # [settings] executor = "ray" (and ray_address) runs the stages' units on Ray, unless
+    # --executor or MAMMA_KIT_EXECUTOR chose already
+    with executor_for_run(cap.settings):
+        for i, stage in enumerate(stages):
+            log.info(f"[bold]\\[{i + 1}/{len(stages)}] {stage}[/bold]")
+            ts = time.perf_counter()
+            res = run_stage(ws, stage, cap, force=force, progress=progress)
+            secs = time.perf_counter() - ts
+            facts = _key_facts(stage, res)
+            run.stages[stage] = {"status": res["status"], "seconds": round(secs, 2), "reason": res.get("reason", ""),
+                                 "facts": facts, "summary": res}
+            log.info(f"    {stage}: {res['status']} in {secs:.1f} s" + (f" - {facts}" if facts else ""))
     run.seconds = time.perf_counter() - t0
     return run.to_dict()
 

@@ -173,3 +173,14 @@ def test_tiny_chain_on_ray_equals_local(ray_local, tmp_path, monkeypatch):
     assert any(k.startswith("masks/") for k in local) and any(k.startswith("landmarks/") for k in local)
     for k in local:
         assert np.array_equal(local[k], on_ray[k], equal_nan=True), k
+
+
+def test_cli_executor_option(cli, tmp_path):
+    saved = executor.chosen()
+    try:
+        r = cli("--executor", "dask", "fit", tmp_path)
+        assert r.code == 2 and "unknown executor 'dask'" in r.err, r
+        r = cli("--executor", "ray", "fit", tmp_path / "missing")  # chosen before the command runs
+        assert r.code == 2 and executor.executor_name() == "ray", r
+    finally:
+        executor.set_executor(*saved)

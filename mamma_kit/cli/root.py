@@ -29,5 +29,12 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
-                                                 help="Print the version and exit.")) -> None:
+                                                 help="Print the version and exit."),
+          executor: str = typer.Option(None, "--executor", metavar="local|ray",
+                                       help="Where units of work run: local processes, or Ray (MAMMA_KIT_RAY_ADDRESS, "
+                                            "else a Ray instance here). Default: MAMMA_KIT_EXECUTOR, else "
+                                            "capture.toml's \\[settings] executor, else local.")) -> None:
     """mamma-kit: from phone videos and a printed ChArUco board to SMPL-X bodies."""
+    from mamma_kit.core.executor import set_executor
+
+    set_executor(executor)
