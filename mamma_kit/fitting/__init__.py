@@ -117,7 +117,9 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     log.info(f"fit: {len(data.person_ids)} person(s), {len(data.frame_times)} frames, cameras "
              f"{', '.join(data.cameras)}, stages 1-{stages}")
     fitter = Fitter(model, data, cfg)
-    result = fitter.fit()
+    from mamma_kit.fitting.units import fit_in_units
+
+    result = fit_in_units(fitter)  # Fitter.fit with its chunks as units of the executor
     secs = time.perf_counter() - t0
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
     written = []
