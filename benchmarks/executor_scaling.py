@@ -205,7 +205,7 @@ def costs(a) -> None:
         ws_dir = _workspace(a.costs_workspace, tmp)
         print(f"workspace: copy of {a.costs_workspace}; board video: {a.board}; load average {_load()} on "
               f"{os.cpu_count()} cores; one thread per unit")
-        print(f"{'stage':<10} {'unit':<22} {'wall (s)':>9} {'cpu (s)':>8} {'per 100 fr (s)':>15} "
+        print(f"{'stage':<10} {'unit':<22} {'wall (s)':>9} {'cpu (s)':>8} {'wall/100 fr (s)':>15} "
               f"{'peak RSS (MB)':>14} {'reads (MB)':>11} {'writes (MB)':>12}")
         # track last: it rewrites masks/<cam>.npz, which keypoints, landmarks and the fit read as given
         stages = ["board", "keypoints", "landmarks", "fit", "track"]
