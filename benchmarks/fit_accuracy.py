@@ -43,6 +43,7 @@ share of the stage-2 energy.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import subprocess
@@ -118,8 +119,7 @@ def fit_and_evaluate(ws, cameras: list[str] | None, stages: int = 4, cfg=None, p
     data = load_fit_data(ws, camera_list=cameras, n_landmarks=len(model.landmark_ids))
     if frames:
         data = data.slice_frames(slice(0, frames))
-    cfg = cfg or FitConfig()
-    cfg.stages = stages
+    cfg = dataclasses.replace(cfg or FitConfig(), stages=stages)  # the caller's config stays as it was
     w0, c0 = time.perf_counter(), time.process_time()
     res = Fitter(model, data, cfg).fit()
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0

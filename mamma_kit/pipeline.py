@@ -6,7 +6,7 @@
 people's keypoints.)
 
 Every stage is the same function its own command calls (calibration.stage, timing.stage,
-masks.stage, landmarks.stage, matching.stage, fitting.fit_workspace, report.build_report),
+masks.stage, landmarks.stage, matching.stage, fitting.fit_workspace, report.stage.run_report),
 so a stage is skipped exactly when its manifest (.cache/<stage>.json, per camera for track
 and landmarks) says its inputs, settings and outputs are unchanged, and recomputed - saying
 why - when anything it reads changed. Outputs are written atomically and a manifest only

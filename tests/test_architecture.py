@@ -42,8 +42,6 @@ ALLOWED_PRIVATE: set[tuple[str, str]] = {
     ("mamma_kit/core/executor_ray.py", "executor._init_worker  (executor is mamma_kit.core.executor)"),
     ("tests/test_executor_ray.py", "from mamma_kit.core.executor_ray import _shared_elements"),
     ("tests/test_executor_ray.py", "executor._chosen  (executor is mamma_kit.core.executor)"),
-    # tests/test_match_recipes.py patches synth/interact.py's private solver (synth/ is not ours here)
-    ("tests/test_match_recipes.py", "setattr('mamma_kit.synth.interact._solve_contacts')"),
 }
 ALLOWED_CYCLES: list[set[str]] = [
     # executor.py imports executor_ray.py lazily when Ray is chosen, and executor_ray.py imports it back

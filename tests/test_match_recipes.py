@@ -110,7 +110,7 @@ def duo(tmp_path_factory):
     uses the fully rendered capture, hands joined."""
     root = tmp_path_factory.mktemp("duo")
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr("mamma_kit.synth.interact._solve_contacts", lambda body, clip, iters: 0.0)
+        mp.setattr("mamma_kit.synth.interact.solve_contacts", lambda body, clip, iters: 0.0)
         return root, recipe_workspace(root, "iphone-outdoor-duo")
 
 

@@ -63,7 +63,7 @@ def fit_floor_and_contacts(body, clip, grounds: list[str], iters: int = 60) -> d
     # heights stay made (people of different heights are lifted by different amounts)
     _place_on_floor(body, clip, grounds)
     if clip.contacts:
-        diag["contact_error_m"] = _solve_contacts(body, clip, iters)
+        diag["contact_error_m"] = solve_contacts(body, clip, iters)
     return diag
 
 
@@ -86,7 +86,7 @@ def _place_on_floor(body, clip, grounds: list[str]) -> None:
 IK_RATE = 15.0  # Hz: arm corrections are solved at this rate and interpolated in between
 
 
-def _solve_contacts(body, clip, iters: int) -> float:
+def solve_contacts(body, clip, iters: int) -> float:
     """Arm IK on a subsampled clip (IK_RATE), corrections interpolated to every sample."""
     times_all = clip.times
     dt = float(np.median(np.diff(times_all))) if len(times_all) > 1 else 1.0
