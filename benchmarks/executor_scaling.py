@@ -184,7 +184,7 @@ def _one_stage(stage: str, ws_dir: str, board: str | None, q) -> None:
 
         run_landmarks(ws, cameras=[cam], force=True)
     elif stage == "fit":
-        from mamma_kit.fitting import fit_workspace
+        from mamma_kit.fitting.stage import fit_workspace
 
         rep = fit_workspace(ws, force=True, threads=1)
         facts = {"frames": rep["frames"], "people": len(rep["persons"]), "cameras": len(rep["cameras"])}

@@ -112,7 +112,7 @@ def fit_and_evaluate(ws, cameras: list[str] | None, stages: int = 4, cfg=None, p
     from mamma_kit.body.model import load_body_model
     from mamma_kit.core.smplxfile import SmplxResult
     from mamma_kit.evaluation.fit import evaluate_results
-    from mamma_kit.fitting import FitConfig, Fitter
+    from mamma_kit.fitting.stages import FitConfig, Fitter
     from mamma_kit.fitting.data import load_fit_data
 
     model = load_body_model("open")
@@ -229,7 +229,7 @@ def keypoint_rows(a) -> list[dict]:
 
     from mamma_kit.core.calibfile import read_calibration
     from mamma_kit.evaluation.fit import install_gt_calibration_and_timing
-    from mamma_kit.fitting import FitConfig
+    from mamma_kit.fitting.stages import FitConfig
     from mamma_kit.fitting.cameras import pick_cameras
     from mamma_kit.core.workspace import Workspace
 

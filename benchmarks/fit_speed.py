@@ -35,7 +35,7 @@ def main() -> None:
 
     from fit_accuracy import CASES, prepare_workspace
     from mamma_kit.body.model import load_body_model
-    from mamma_kit.fitting import FitConfig, Fitter
+    from mamma_kit.fitting.stages import FitConfig, Fitter
     from mamma_kit.fitting.data import load_fit_data
 
     torch.set_num_threads(a.threads)

@@ -6,7 +6,7 @@
 people's keypoints.)
 
 Every stage is the same function its own command calls (calibration.stage, timing.stage,
-masks.stage, landmarks.stage, matching.stage, fitting.fit_workspace, report.stage.run_report),
+masks.stage, landmarks.stage, matching.stage, fitting.stage, report.stage),
 so a stage is skipped exactly when its manifest (.cache/<stage>.json, per camera for track
 and landmarks) says its inputs, settings and outputs are unchanged, and recomputed - saying
 why - when anything it reads changed. Outputs are written atomically and a manifest only
@@ -179,7 +179,8 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
                         min_affinity=float(opts.get("min_affinity", 0.25)), plots=bool(opts.get("plots", True)),
                         force=force)
     elif stage == "fit":
-        from mamma_kit.fitting import FitConfig, fit_workspace
+        from mamma_kit.fitting.stage import fit_workspace
+        from mamma_kit.fitting.stages import FitConfig
 
         cfg = FitConfig(chunk=int(opts.get("chunk", 120)), floor=bool(opts.get("floor", False)))
         res = fit_workspace(ws, opts.get("cameras"), opts.get("camera_list"), int(opts.get("stages", 4)),

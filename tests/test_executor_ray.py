@@ -141,7 +141,8 @@ def _tiny_chain(root, name: str, monkeypatch) -> dict:
 
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.evaluation.fit import install_gt_calibration_and_timing
-    from mamma_kit.fitting import FitConfig, fit_workspace
+    from mamma_kit.fitting.stage import fit_workspace
+    from mamma_kit.fitting.stages import FitConfig
     from mamma_kit.landmarks.stage import run_landmarks
     from mamma_kit.masks.stage import run_track
     from mamma_kit.synth.capture import synthesize

@@ -242,7 +242,7 @@ def test_fit_without_keypoints_is_unchanged_and_says_so(body, tmp_path):
     from mamma_kit.core.calibfile import write_calibration
     from mamma_kit.core.tracks import LandmarkTracks
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.fitting import fit_workspace
+    from mamma_kit.fitting.stage import fit_workspace
     from mamma_kit.fitting.data import load_fit_data
     from mamma_kit.fitting.stages import FitConfig, Fitter
 

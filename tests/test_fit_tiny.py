@@ -87,7 +87,7 @@ def test_tiny_exact_landmarks_fit_hands(tiny_fit, tmp_path):
     from mamma_kit.core.smplxfile import SmplxResult
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.evaluation.fit import evaluate_results
-    from mamma_kit.fitting import FitConfig, Fitter
+    from mamma_kit.fitting.stages import FitConfig, Fitter
     from mamma_kit.fitting.data import load_fit_data
 
     ws_dir = tmp_path / "exact"

@@ -11,11 +11,25 @@ Public interface (see each module's docstring):
 - ``model.proxy`` (ProxyMesh), ``pose_proxy(model, params)``, ``signed_distance(points, verts,
   faces)`` (negative inside).
 - ``UPRIGHT_ORIENT``: global_orient that stands the canonical Y-up body up in the Z-up world.
+
+These names are imported lazily, so ``import mamma_kit.body.skeleton`` does not load torch.
 """
 
-from mamma_kit.body.lbs import UPRIGHT_ORIENT, pose_mesh, pose_mesh_np, pose_restricted
-from mamma_kit.body.model import BodyModel, LandmarkSet, load_body_model
-from mamma_kit.body.proxy import ProxyMesh, pose_proxy, signed_distance
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "UPRIGHT_ORIENT": "lbs", "pose_mesh": "lbs", "pose_mesh_np": "lbs", "pose_restricted": "lbs",
+    "BodyModel": "model", "load_body_model": "model", "LandmarkSet": "landmarks",
+    "ProxyMesh": "proxy", "pose_proxy": "proxy", "signed_distance": "proxy",
+}
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
 __all__ = ["kp_regressor", "landmarks", "lbs", "model", "proxy", "skeleton"]
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"mamma_kit.body.{_EXPORTS[name]}"), name)
+    raise AttributeError(name)

@@ -84,7 +84,7 @@ def demo(
     """Render a small two-person capture, run capture-to-smplx on it and evaluate it against
     its ground truth: MPJPE and the report path at the end."""
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.evaluation import evaluate_workspace
+    from mamma_kit.evaluation.stage import evaluate_workspace
     from mamma_kit.pipeline import capture_to_smplx, print_summary
 
     setup(quiet, json_out)

@@ -23,7 +23,7 @@ def eval_cmd(
 ) -> None:
     """Every stage's metrics against ground truth, in one JSON object grouped by stage."""
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.evaluation import evaluate_workspace
+    from mamma_kit.evaluation.stage import evaluate_workspace
 
     setup(quiet, json_out)
     result = evaluate_workspace(Workspace(workspace), only.split(",") if only else None)

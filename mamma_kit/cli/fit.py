@@ -50,7 +50,8 @@ def fit_cmd(
     """Fit SMPL-X to every matched person in every frame: smplx/person_<k>.npz + smplx/fit_report.json."""
     setup(quiet, json_out)
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.fitting import FitConfig, fit_workspace
+    from mamma_kit.fitting.stage import fit_workspace
+    from mamma_kit.fitting.stages import FitConfig
 
     if cameras is not None and camera_list:
         raise UserError("--cameras and --camera-list both given", "pass one of them")

@@ -249,7 +249,7 @@ class _Builder:
         if not self.ws.gt_dir.is_dir():
             return None
         s = Section("gt", "Ground truth")
-        from mamma_kit.evaluation import evaluate_workspace
+        from mamma_kit.evaluation.stage import evaluate_workspace
         from mamma_kit.report import figures
 
         self.say("evaluation against ground truth")

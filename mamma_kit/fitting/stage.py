@@ -1,0 +1,153 @@
+"""The fit stage: calibration.toml, timing.toml, landmarks/, keypoints/ (when there) and
+identities.json -> smplx/person_<k>.npz and smplx/fit_report.json.
+
+``fit_workspace`` is what `mamma-kit fit WORKSPACE` and capture-to-smplx call; the report says
+per stage what each energy contributes and the landmark and keypoint reprojection per camera.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mamma_kit.fitting.stages import FitConfig, Fitter, FitResult
+
+REPORT_NAME = "fit_report.json"
+
+
+def reprojection_report(model, data, result: FitResult, min_vis: float = 0.5) -> dict:
+    """Per camera: mean / median / 90th percentile px between the observed landmarks
+    (visibility > min_vis) and the fitted bodies' projected landmarks."""
+    import torch
+
+    from mamma_kit.body.lbs import pose_restricted
+    from mamma_kit.fitting.energies import pose_dict
+    from mamma_kit.fitting.projection import RigTensors
+
+    cams = RigTensors.from_rig(data.rig).to(torch.float32)
+    with torch.no_grad():
+        v, _ = pose_restricted(model, pose_dict(torch.as_tensor(result.pose, dtype=torch.float32),
+                                                torch.as_tensor(result.transl, dtype=torch.float32),
+                                                torch.as_tensor(result.betas, dtype=torch.float32)))
+        uv, valid = cams.project(v[None])
+    err = np.linalg.norm(uv.numpy() - data.xy, axis=-1)  # (C, P, T, L)
+    use = (data.vis > min_vis) & valid.numpy()
+    out = {}
+    for i, n in enumerate(data.cameras):
+        e = err[i][use[i]]
+        out[n] = ({"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
+                   "landmarks": int(len(e))} if len(e) else {"landmarks": 0})
+    return out
+
+
+def keypoint_report(model, data, result: FitResult, regressor, min_vis: float = 0.5) -> dict:
+    """Per camera: median / mean / 90th percentile px between BlazePose's points (visibility
+    x presence > min_vis) and the fitted bodies' regressed points, and the median in % of
+    the person's size in the view."""
+    import torch
+
+    from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp
+    from mamma_kit.fitting.projection import RigTensors
+
+    kin = BodyKinematics(model, regressor=regressor)
+    with torch.no_grad():
+        f = kin.forward(torch.as_tensor(result.betas), so3_exp(torch.as_tensor(result.pose)),
+                        torch.as_tensor(result.transl), dtype=torch.float64)
+        uv, valid = RigTensors.from_rig(data.rig).project(f.v[None])
+    err = np.linalg.norm(uv.numpy() - data.kp_xy, axis=-1)  # (C, P, T, 33)
+    use = (data.kp_vis > min_vis) & valid.numpy() & (data.kp_size[..., None] > 0)
+    rel = err / np.maximum(data.kp_size[..., None], 1e-6) * 100
+    out = {}
+    for i, n in enumerate(data.cameras):
+        e = err[i][use[i]]
+        out[n] = ({"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
+                   "median_pct_size": float(np.median(rel[i][use[i]])), "points": int(len(e))}
+                  if len(e) else {"points": 0})
+    return out
+
+
+def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None = None, stages: int = 4,
+                  body_model: str | None = None, config: FitConfig | None = None, command: str = "mamma-kit fit",
+                  force: bool = False, threads: int | None = None) -> dict:
+    """Fit every matched person of a workspace and write the results (see module doc)."""
+    import torch
+
+    from mamma_kit.body.model import load_body_model, resolve_body_model_path
+    from mamma_kit.core import log
+    from mamma_kit.core.io import write_json
+    from mamma_kit.core.manifest import StageManifest, producer
+    from mamma_kit.core.smplxfile import SmplxResult, write_smplx_result
+    from mamma_kit.fitting.data import load_fit_data
+
+    if threads:
+        torch.set_num_threads(int(threads))
+    if body_model is None:
+        body_model = ws.load_capture().body_model if ws.capture_toml.is_file() else "open"
+    cfg = dataclasses.replace(config or FitConfig(), stages=stages)  # the caller's config stays as it was
+    model = load_body_model(body_model)
+    t0 = time.perf_counter()
+    data = load_fit_data(ws, cameras, camera_list, n_landmarks=len(model.landmark_ids))
+    if data.landmark_set and not data.landmark_set.startswith(model.name):
+        log.warn(f"landmarks were made for '{data.landmark_set}', fitting body model '{model.name}'")
+    model_path = resolve_body_model_path(body_model)
+    inputs = list(data.inputs) + [model_path]
+    settings = {"cameras": data.cameras, "stages": stages, "body_model": model.sha256,
+                "config": {k: (v.__dict__ if hasattr(v, "__dict__") else v) for k, v in cfg.__dict__.items()}}
+    manifest = StageManifest(ws.cache_dir, "fit", ws.root)
+    report_path = ws.smplx_dir / REPORT_NAME
+    state = manifest.check(inputs, settings)
+    if state.fresh and not force and report_path.is_file():
+        log.info(f"fit: up to date ({state.reason}); skipped (--force recomputes)")
+        from mamma_kit.core.io import read_json
+
+        rep = read_json(report_path)
+        rep["skipped"] = True
+        return rep
+    log.info(f"fit: {len(data.person_ids)} person(s), {len(data.frame_times)} frames, cameras "
+             f"{', '.join(data.cameras)}, stages 1-{stages}")
+    fitter = Fitter(model, data, cfg)
+    from mamma_kit.fitting.units import fit_in_units
+
+    result = fit_in_units(fitter)  # Fitter.fit with its chunks as units of the executor
+    secs = time.perf_counter() - t0
+    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
+    written = []
+    for i, pid in enumerate(result.person_ids):
+        prod = producer(command, hashes) | {"reference": data.reference, "frame_camera": data.frame_camera,
+                                            "person": int(pid), "cameras": data.cameras, "stages": stages}
+        r = SmplxResult.from_params(result.params(i), result.joints[i], result.frame_times, result.fps,
+                                    model.name, model.sha256, model.gender, prod)
+        written.append(write_smplx_result(ws.person_file(pid), r))
+    for old in ws.person_files():  # a person from an earlier run that this run did not fit
+        if old not in written:
+            old.unlink()
+    report = {
+        "stage": "fit", "skipped": False, "body_model": model.name, "cameras": data.cameras,
+        "reference": data.reference, "frame_camera": data.frame_camera, "stages": stages,
+        "frames": int(len(data.frame_times)),
+        "time_span_s": [float(data.frame_times[0]), float(data.frame_times[-1])],
+        "persons": [{"id": int(pid), "file": ws.relative(ws.person_file(pid)),
+                     "frames_observed": int(result.observed[i].sum())} for i, pid in enumerate(result.person_ids)],
+        "chunks": result.chunks,
+        "stage_stats": {k: v.to_dict() for k, v in result.stats.items()},
+        "reprojection_px": reprojection_report(model, data, result),
+        "keypoints": ({"used": True, "weight": cfg.keypoint_weight, "regressor_learned": fitter.regressor.learned,
+                       "reprojection_px": keypoint_report(model, data, result, fitter.regressor)}
+                      if fitter.kp is not None else
+                      {"used": False, "why": "no keypoints/<cam>.npz" if not data.has_keypoints
+                       else "keypoint_weight is 0"}),
+        "seconds": round(secs, 2), "threads": torch.get_num_threads(),
+        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        "notes": data.notes,
+    }
+    write_json(report_path, report)
+    manifest.record(inputs, settings, written + [report_path], {"persons": len(written), "seconds": secs}, secs)
+    return report
+
+
+def report_path(ws) -> Path:
+    return ws.smplx_dir / REPORT_NAME
