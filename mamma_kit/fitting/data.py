@@ -152,6 +152,23 @@ def _mixer(f0: np.ndarray, f1: np.ndarray, w1: np.ndarray, k: int):
     return mix
 
 
+def sampled_tracks(track_ids: np.ndarray, valid_tk: np.ndarray, cam_pmap: dict, pindex: dict, i0, i1, a,
+                   taken_pt: np.ndarray):
+    """For each of a view's tracks matched to a fitted person: (pi, take (T,), mix), where
+    ``mix(arr)`` samples that track's column of a (frames, tracks, ...) array at the output
+    frames ``take`` (see _sampling); a person's first track wins a frame (taken_pt (P, T))."""
+    for k, tid in enumerate(track_ids):
+        p = cam_pmap.get(int(tid))
+        if p is None or p not in pindex:  # unmatched, or a person left out (seen in one view)
+            continue
+        pi = pindex[p]
+        smp = _sampling(valid_tk[:, k], i0, i1, a, taken_pt[pi])
+        if smp is None:
+            continue
+        take, f0, f1, w1 = smp
+        yield pi, take, _mixer(f0, f1, w1, k)
+
+
 def point_box_size(xy_tk_n2: np.ndarray) -> np.ndarray:
     """Larger side (px) of the box around each detection's points: (..., n, 2) -> (...)."""
     with np.errstate(invalid="ignore"):
@@ -188,16 +205,7 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
             continue
         i0, i1, a = _bracket(tr, out_t)
         size_tk = point_box_size(kt.xy)
-        for k, tid in enumerate(kt.track_ids):
-            p = pmap[n].get(int(tid))
-            if p is None or p not in pindex:
-                continue
-            pi = pindex[p]
-            smp = _sampling(kt.valid[:, k], i0, i1, a, taken[ci, pi])
-            if smp is None:
-                continue
-            take, f0, f1, w1 = smp
-            mix = _mixer(f0, f1, w1, k)
+        for pi, take, mix in sampled_tracks(kt.track_ids, kt.valid, pmap[n], pindex, i0, i1, a, taken[ci]):
             xy_m = mix(kt.xy)
             bad = ~np.isfinite(xy_m).all(-1)
             vv = np.clip(np.nan_to_num(mix(kt.visibility) * mix(kt.presence)), 0, 1)
@@ -295,16 +303,7 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         if len(tr) == 0:
             continue
         i0, i1, a = _bracket(tr, out_t)
-        for k, tid in enumerate(lt.track_ids):
-            p = pmap[n].get(int(tid))
-            if p is None or p not in pindex:  # unmatched, or a person left out (seen in one view)
-                continue
-            pi = pindex[p]
-            smp = _sampling(lt.valid[:, k], i0, i1, a, present[ci, pi])
-            if smp is None:
-                continue
-            take, f0, f1, w1 = smp
-            mix = _mixer(f0, f1, w1, k)
+        for pi, take, mix in sampled_tracks(lt.track_ids, lt.valid, pmap[n], pindex, i0, i1, a, present[ci]):
             xy_m = mix(lt.xy)
             bad = ~np.isfinite(xy_m).all(-1)
             xy[ci, pi, take] = np.nan_to_num(xy_m)
