@@ -160,7 +160,7 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         from mamma_kit.keypoints.stage import run_keypoints
 
         res = run_keypoints(ws, blank=bool(opts.get("blank", True)), pictures=bool(opts.get("pictures", True)),
-                            force=force, threads=opts.get("threads"))
+                            force=force, threads=opts.get("threads"), unit_frames=opts.get("unit_frames"))
     elif stage == "landmarks":
         from mamma_kit.landmarks.stage import run_landmarks
 
@@ -171,7 +171,7 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         res = run_landmarks(ws, source=opts.get("source", "net"), weights=opts.get("weights"), arch=opts.get("arch"),
                             batch=int(opts.get("batch", 8)), device=opts.get("device", "cpu"),
                             noise=str(opts.get("noise", "0")), outliers=float(opts.get("outliers", 0.0)),
-                            seed=int(opts.get("seed", 0)), force=force)
+                            seed=int(opts.get("seed", 0)), force=force, unit_frames=opts.get("unit_frames"))
     elif stage == "match":
         from mamma_kit.matching.stage import run_match
 

@@ -20,6 +20,9 @@ def keypoints_cmd(
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="LiteRT threads (default: up to 2)."),
     pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="Write report/keypoints/<cam>.png."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
+    unit_frames: Optional[int] = typer.Option(None, "--unit-frames", min=0, help="Frames per unit of work "
+                                              "(0: a camera per unit; default MAMMA_KIT_UNIT_FRAMES or 0). Each "
+                                              "unit starts with the detector, so a split moves the first frames' points."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
@@ -32,6 +35,6 @@ def keypoints_cmd(
 
     setup(quiet, json_out)
     res = run_keypoints(Workspace(workspace), cameras=cameras, blank=blank, pictures=pictures, force=force,
-                        threads=threads)
+                        threads=threads, unit_frames=unit_frames)
     if json_out:
         emit_json(res)

@@ -32,6 +32,9 @@ def landmarks_cmd(
     seed: int = typer.Option(0, "--seed", help="--source gt: random seed."),
     describe: bool = typer.Option(False, "--describe", help="Print the architecture's state-dict names and shapes."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
+    unit_frames: Optional[int] = typer.Option(None, "--unit-frames", min=0, help="Frames per unit of work "
+                                              "(0: a camera per unit; default MAMMA_KIT_UNIT_FRAMES or 0); "
+                                              "the results do not depend on it."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
@@ -70,6 +73,7 @@ def landmarks_cmd(
     if workspace is None:
         raise UserError("no WORKSPACE given", "run `mamma-kit landmarks WORKSPACE` (or --describe to list the weights)")
     res = run_landmarks(Workspace(workspace), source=source, batch=batch, device=device, cameras=cameras, noise=noise,
-                        outliers=outliers, seed=seed, force=force, loaded=loaded)
+                        outliers=outliers, seed=seed, force=force, loaded=loaded,
+                        unit_frames=unit_frames)
     if json_out:
         emit_json(res)

@@ -40,6 +40,25 @@ def default_workers(n_units: int, workers: int | None = None) -> int:
     return max(1, min(int(workers), n_units))
 
 
+# frames per unit for the per-camera stages that can split a video (keypoints, landmarks);
+# 0 = the whole camera is one unit
+UNIT_FRAMES_ENV = "MAMMA_KIT_UNIT_FRAMES"
+
+
+def frame_ranges(n_frames: int, unit_frames: int | None = None) -> list[tuple[int, int]]:
+    """[start, stop) ranges of at most ``unit_frames`` frames covering n_frames (``None``: the
+    MAMMA_KIT_UNIT_FRAMES setting, 0 or unset: one range). The ranges depend only on these two
+    numbers, never on the executor, so results are the same on every executor."""
+    if unit_frames is None:
+        env = os.environ.get(UNIT_FRAMES_ENV, "").strip()
+        unit_frames = int(env) if env else 0
+    if unit_frames < 0:
+        raise UserError(f"--unit-frames {unit_frames} is negative", "pass 0 (a camera per unit) or a frame count")
+    if unit_frames == 0 or n_frames <= unit_frames:
+        return [(0, n_frames)]
+    return [(a, min(a + unit_frames, n_frames)) for a in range(0, n_frames, unit_frames)]
+
+
 def _check(name: str, where: str) -> str:
     name = str(name).strip().lower()
     if name not in EXECUTORS:

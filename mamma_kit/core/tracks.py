@@ -28,7 +28,7 @@ Every file also holds ``producer`` (JSON string: tool, version, command, input h
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -266,3 +266,19 @@ def _require(d: dict, path, keys) -> None:
     if missing:
         raise UserError(f"{Path(path).name} is missing {', '.join(missing)} (not a mamma-kit file or too old)",
                         "run the stage that writes it again")
+
+
+def join_frame_ranges(parts: list[tuple[int, int, object]]):
+    """One camera's tracks from parts computed on frame ranges: [(start, stop, tracks)], every
+    part a KeypointTracks or LandmarkTracks of the whole camera (same frames and tracks) that
+    holds results only in its rows start:stop. Returns the first part with the others' rows."""
+    _, _, out = parts[0]
+    T = len(out.frame_times)
+    for start, stop, part in parts[1:]:
+        if len(part.frame_times) != T or not np.array_equal(part.track_ids, out.track_ids):
+            raise ValueError("frame-range parts of one camera must share its frames and tracks")
+        for f in fields(out):
+            a = getattr(out, f.name)
+            if isinstance(a, np.ndarray) and a.ndim >= 2 and a.shape[0] == T:
+                a[start:stop] = getattr(part, f.name)[start:stop]
+    return out

@@ -38,8 +38,11 @@ def _follow_ok(roi_4: np.ndarray, box_4: np.ndarray) -> bool:
 
 
 def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
-                         progress_label: str | None = None) -> tuple[KeypointTracks, dict]:
-    """33 points for every (frame, track) of one camera's mask tracks, streaming the video once."""
+                         progress_label: str | None = None, frames: tuple[int, int] | None = None
+                         ) -> tuple[KeypointTracks, dict]:
+    """33 points for every (frame, track) of one camera's mask tracks, streaming the video once.
+    ``frames``: only the mask frames start:stop (a unit of a split camera; the ROIs are found
+    afresh by the detector at its first frame)."""
     from mamma_kit.video import VideoReader
 
     reader = VideoReader(video_path)
@@ -49,6 +52,10 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
                         "run `mamma-kit track` again for this camera")
     out = KeypointTracks.empty(masks.camera, masks.image_size, masks.frame_times, masks.track_ids, model=MODEL_NAME)
     present = masks.present
+    if frames is not None:
+        present = present.copy()
+        present[:frames[0]] = False
+        present[frames[1]:] = False
     vid_idx = nearest_frames(masks.frame_times, reader.timestamps)
     by_video = {int(v): int(t) for t, v in enumerate(vid_idx) if v >= 0 and present[t].any()}
     follow: dict[int, np.ndarray] = {}  # column -> ROI from the previous frame
@@ -96,8 +103,9 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
 
 
 def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = True, pictures: bool = True,
-                  force: bool = False, threads: int | None = None) -> dict:
-    """BlazePose keypoints for every tracked person of every camera (see the module docstring)."""
+                  force: bool = False, threads: int | None = None, unit_frames: int | None = None) -> dict:
+    """BlazePose keypoints for every tracked person of every camera (see the module docstring).
+    ``unit_frames``: frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES)."""
     from mamma_kit.core.workspace import select_cameras
     from mamma_kit.keypoints.runtime import DETECTOR, LANDMARKER, model_path
 
@@ -119,14 +127,27 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
             per_cam[cam] = {"camera": cam, "skipped": True, **manifest.load().get("summary", {})}
         else:
             todo.append(cam)
-    from mamma_kit.core.executor import run_units
+    from mamma_kit.core.executor import frame_ranges, run_units
+    from mamma_kit.core.tracks import join_frame_ranges
     _ESTIMATORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
-    unit = partial(_keypoints_one, root=ws.root, models=models, settings=settings, blank=blank, pictures=pictures,
-                   threads=threads)
-    # one unit per camera; LiteRT uses every core, so locally they run here one after another
-    for cam, summ in zip(todo, run_units(unit, todo, threaded=True)):
-        per_cam[cam] = {"camera": cam, "skipped": False, **summ}
+    # units: (camera, frame range); one range per camera unless unit_frames (or
+    # MAMMA_KIT_UNIT_FRAMES) splits it. LiteRT uses every core, so locally they run here in order
+    units = [(cam, r) for cam in todo for r in frame_ranges(len(MaskTracks.load(ws.mask_file(cam)).frame_times),
+                                                          unit_frames)]
+    unit = partial(_keypoints_range, root=ws.root, models=models, settings=settings, blank=blank,
+                   pictures=pictures, threads=threads)
+    parts: dict[str, list] = {cam: [] for cam in todo}
+    for (cam, (start, stop)), (summ, kt) in zip(units, run_units(unit, units, threaded=True)):
+        parts[cam].append((start, stop, kt, summ))
+    for cam in todo:
+        if len(parts[cam]) == 1:  # a whole camera: its unit wrote it (so a stopped run keeps it)
+            per_cam[cam] = {"camera": cam, "skipped": False, **parts[cam][0][3]}
+            continue
+        kt = join_frame_ranges([(a, b, k) for a, b, k, _ in parts[cam]])
+        summ = _joined_summary(cam, [sm for *_, sm in parts[cam]])
+        per_cam[cam] = {"camera": cam, "skipped": False,
+                        **_write_camera(ws, cam, kt, summ, models, settings, pictures)}
     ran = todo
     per_cam = [per_cam[c] for c in cams]
     secs = time.perf_counter() - t0
@@ -139,24 +160,48 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
 _ESTIMATORS: dict = {}
 
 
-def _keypoints_one(cam: str, root: Path, models: list[Path], settings: dict, blank: bool, pictures: bool,
-                   threads: int | None) -> dict:
-    """One camera: keypoints/<cam>.npz, its picture and its manifest (here, or in a worker)."""
+def _keypoints_range(unit: tuple[str, tuple[int, int]], root: Path, models: list[Path], settings: dict,
+                     blank: bool, pictures: bool, threads: int | None) -> tuple[dict, KeypointTracks | None]:
+    """One (camera, frame range), here or in a worker: (summary, None) for a whole camera, whose
+    keypoints/<cam>.npz, picture and manifest it writes itself; else (summary, keypoints with
+    rows start:stop filled) for run_keypoints to join."""
     from mamma_kit.core.workspace import Workspace
 
+    cam, frames = unit
     ws = Workspace(root)
     cap = ws.load_capture()
-    manifest = StageManifest(ws.cache_dir, f"keypoints-{cam}", ws.root)
-    inputs, out = [ws.mask_file(cam), cap.cameras[cam].video, *models], ws.keypoints_file(cam)
     if threads not in _ESTIMATORS:  # one estimator per process, as the cameras' loop had
         from mamma_kit.keypoints.estimator import PoseEstimator
 
         _ESTIMATORS[threads] = PoseEstimator(threads)
-    est = _ESTIMATORS[threads]
+    masks = MaskTracks.load(ws.mask_file(cam))
+    if frames == (0, len(masks.frame_times)):
+        kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank)
+        return _write_camera(ws, cam, kt, summ, models, settings, pictures), None
+    kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank,
+                                    progress_label=f"keypoints {cam} {frames[0]}-{frames[1]}", frames=frames)
+    return summ, kt
+
+
+def _joined_summary(cam: str, summaries: list[dict]) -> dict:
+    if len(summaries) == 1:
+        return summaries[0]
+    out = {"camera": cam, **{k: sum(s[k] for s in summaries) for k in ("instances", "with_pose", "detector_calls",
+                                                                        "followed")}}
+    secs = sum(s["seconds"] for s in summaries)
+    out.update({"seconds": round(secs, 3), "units": len(summaries),
+                "person_frames_per_s": round(out["instances"] / secs, 1) if secs > 0 else None})
+    return out
+
+
+def _write_camera(ws, cam: str, kt: KeypointTracks, summ: dict, models: list[Path], settings: dict,
+                  pictures: bool) -> dict:
+    """keypoints/<cam>.npz, its picture and its manifest, from the camera's joined keypoints."""
+    cap = ws.load_capture()
+    manifest = StageManifest(ws.cache_dir, f"keypoints-{cam}", ws.root)
+    inputs, out = [ws.mask_file(cam), cap.cameras[cam].video, *models], ws.keypoints_file(cam)
     tc = time.perf_counter()
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-    masks = MaskTracks.load(ws.mask_file(cam))
-    kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank)
     kt.producer = producer("keypoints", hashes)
     kt.save(out)
     outputs = [out]
@@ -168,7 +213,7 @@ def _keypoints_one(cam: str, root: Path, models: list[Path], settings: dict, bla
         pic = write_keypoints_picture(kt, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png")
         summ["picture"] = ws.relative(pic)
         outputs.append(pic)
-    manifest.record(inputs, {**settings, "camera": cam}, outputs, summ, time.perf_counter() - tc)
+    manifest.record(inputs, {**settings, "camera": cam}, outputs, summ, summ["seconds"] + time.perf_counter() - tc)
     log.info(f"{cam}: keypoints for {summ['with_pose']} of {summ['instances']} tracked person-frames "
              f"({summ['person_frames_per_s']} /s)")
     return summ

@@ -208,10 +208,12 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
 
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
                min_area: int = MIN_MASK_AREA, producer: dict | None = None,
-               keypoints: KeypointTracks | None = None) -> tuple[LandmarkTracks, dict]:
+               keypoints: KeypointTracks | None = None, frame_range: tuple[int, int] | None = None
+               ) -> tuple[LandmarkTracks, dict]:
     """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video.
     ``keypoints``: the camera's keypoints/<cam>.npz (on the mask tracks' frames and tracks), which
-    keypoint-guided models read."""
+    keypoint-guided models read. ``frame_range``: only the mask frames start:stop (a unit of a split
+    camera; every crop is independent of the others, so the split changes nothing)."""
     from mamma_kit.core.tracks import nearest_frames
     from mamma_kit.video import VideoReader
 
@@ -224,6 +226,9 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
         raise UserError(f"keypoints/{cam}.npz does not belong to masks/{cam}.npz (other frames or tracks)",
                         "run `mamma-kit keypoints` again for this camera")
     todo = masks.present & (mask_areas(masks) >= min_area)
+    if frame_range is not None:
+        todo[:frame_range[0]] = False
+        todo[frame_range[1]:] = False
     vid_idx = nearest_frames(masks.frame_times, reader.timestamps)
     lost = int((todo.any(1) & (vid_idx < 0)).sum())
     if lost:
@@ -258,7 +263,7 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
 
     done = 0
     with _progress() as bar:
-        task = bar.add_task(f"landmarks {cam}", total=total)
+        task = bar.add_task(f"landmarks {cam}" + (f" {frame_range[0]}-{frame_range[1]}" if frame_range else ""), total=total)
         for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints), maxsize=2 * batch):
             pending.append(job)
             if len(pending) >= batch:

@@ -35,9 +35,11 @@ def _camera_names(ws, only, fallback_dir: Path | None = None) -> list[str]:
 
 def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None, arch: str | None = None,
                   batch: int = 8, device: str = "cpu", cameras: list[str] | str | None = None, noise: str = "0",
-                  outliers: float = 0.0, seed: int = 0, force: bool = False, loaded=None) -> dict:
+                  outliers: float = 0.0, seed: int = 0, force: bool = False, loaded=None,
+                  unit_frames: int | None = None) -> dict:
     """Landmarks for every tracked person of every camera (see the module docstring).
-    ``loaded``: an already loaded model (mamma_kit.landmarks.weights.load_model)."""
+    ``loaded``: an already loaded model (mamma_kit.landmarks.weights.load_model). ``unit_frames``:
+    frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES)."""
     if source not in ("net", "gt"):
         raise UserError(f"--source '{source}' is unknown", "use --source net or --source gt")
     if source == "net" and loaded is None:
@@ -78,14 +80,32 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
             per_cam[cam] = {"camera": cam, "skipped": True, **manifest.load().get("summary", {})}
         else:
             todo.append(cam)
-    from mamma_kit.core.executor import run_units
+    from mamma_kit.core.executor import frame_ranges, run_units
+    from mamma_kit.core.tracks import MaskTracks, join_frame_ranges
     _PREDICTORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
-    unit = partial(_landmarks_one, root=ws.root, source=source, settings=settings, unit_inputs=unit_inputs,
+    # units: (camera, frame range); one range per camera unless unit_frames (or MAMMA_KIT_UNIT_FRAMES)
+    # splits it (network cameras only). The network uses every core, so locally they run here in order
+    units = [(cam, r) for cam in todo for r in
+             ([None] if source == "gt" else frame_ranges(len(MaskTracks.load(ws.mask_file(cam)).frame_times),
+                                                           unit_frames))]
+    unit = partial(_landmarks_range, root=ws.root, source=source, settings=settings, unit_inputs=unit_inputs,
                    noise=noise, outliers=outliers, seed=seed, loaded=loaded, device=device, batch=batch)
-    # one unit per camera; the network uses every core, so locally they run here one after another
-    for cam, summ in zip(todo, run_units(unit, todo, threaded=True)):
-        per_cam[cam] = {"camera": cam, "skipped": False, **summ}
+    parts: dict[str, list] = {cam: [] for cam in todo}
+    for (cam, frames), (summ, lt) in zip(units, run_units(unit, units, threaded=True)):
+        parts[cam].append((frames, lt, summ))
+    for cam in todo:
+        if len(parts[cam]) == 1:  # a whole camera: its unit wrote it (so a stopped run keeps it)
+            per_cam[cam] = {"camera": cam, "skipped": False, **parts[cam][0][2]}
+            continue
+        lt = join_frame_ranges([(*fr, part) for fr, part, _ in parts[cam]])
+        summs = [sm for *_, sm in parts[cam]]
+        secs = sum(sm["seconds"] for sm in summs)
+        summ = {"camera": cam, "crops": sum(sm["crops"] for sm in summs), "frames": sum(sm["frames"] for sm in summs),
+                "tracks": summs[0]["tracks"], "seconds": round(secs, 3), "units": len(summs)}
+        summ["crops_per_s"] = round(summ["crops"] / secs, 2) if secs > 0 else None
+        per_cam[cam] = {"camera": cam, "skipped": False,
+                        **_write_camera(ws, cam, lt, summ, settings, unit_inputs, secs)}
     ran = todo
     per_cam = [per_cam[c] for c in cams]
     secs = time.perf_counter() - t0
@@ -103,35 +123,47 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
 _PREDICTORS: dict = {}
 
 
-def _landmarks_one(cam: str, root: Path, source: str, settings: dict, unit_inputs: dict, noise: str,
-                   outliers: float, seed: int, loaded, device: str, batch: int) -> dict:
-    """One camera: landmarks/<cam>.npz and its manifest (here, or in a worker of the executor)."""
+def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, source: str, settings: dict,
+                     unit_inputs: dict, noise: str, outliers: float, seed: int, loaded, device: str, batch: int):
+    """One (camera, frame range), here or in a worker: (summary, None) for a whole camera, whose
+    landmarks/<cam>.npz and manifest it writes itself; else (summary, landmarks with rows
+    start:stop filled) for run_landmarks to join."""
     from mamma_kit.core.workspace import Workspace
 
+    cam, frames = unit
     ws = Workspace(root)
-    manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
-    inputs, out = unit_inputs[cam], ws.landmarks_file(cam)
-    tc = time.perf_counter()
-    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-    prod = producer("landmarks " + " ".join(f"{k}={v}" for k, v in settings.items()), hashes)
+    t0 = time.perf_counter()
     if source == "gt":
         from mamma_kit.landmarks.gt import noisy_gt_landmarks
 
         lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
-        lt.producer = prod
-    else:
-        from mamma_kit.core.tracks import KeypointTracks, MaskTracks
-        from mamma_kit.landmarks.inference import Predictor, run_camera
+        return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
+    from mamma_kit.core.tracks import KeypointTracks, MaskTracks
+    from mamma_kit.landmarks.inference import Predictor, run_camera
 
-        key = (id(loaded), device)  # one predictor per model and process, as the cameras' loop had
-        if key not in _PREDICTORS:
-            _PREDICTORS.clear()
-            _PREDICTORS[key] = (loaded, Predictor(loaded, device))
-        pred = _PREDICTORS[key][1]
-        cap = ws.load_capture()
-        kt = KeypointTracks.load(ws.keypoints_file(cam)) if loaded.config.keypoints_in else None
-        lt, summ = run_camera(pred, cam, MaskTracks.load(ws.mask_file(cam)), cap.cameras[cam].video, batch,
-                              producer=prod, keypoints=kt)
+    key = (id(loaded), device)  # one predictor per model and process, as the cameras' loop had
+    if key not in _PREDICTORS:
+        _PREDICTORS.clear()
+        _PREDICTORS[key] = (loaded, Predictor(loaded, device))
+    pred = _PREDICTORS[key][1]
+    cap = ws.load_capture()
+    masks = MaskTracks.load(ws.mask_file(cam))
+    kt = KeypointTracks.load(ws.keypoints_file(cam)) if loaded.config.keypoints_in else None
+    whole = frames == (0, len(masks.frame_times))
+    lt, summ = run_camera(pred, cam, masks, cap.cameras[cam].video, batch, keypoints=kt,
+                          frame_range=None if whole else frames)
+    if whole:
+        return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
+    return summ, lt
+
+
+def _write_camera(ws, cam: str, lt, summ: dict, settings: dict, unit_inputs: dict, seconds: float) -> dict:
+    """landmarks/<cam>.npz and its manifest, from the camera's landmarks (``seconds``: computing them)."""
+    manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
+    inputs, out = unit_inputs[cam], ws.landmarks_file(cam)
+    tc = time.perf_counter()
+    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
+    lt.producer = producer("landmarks " + " ".join(f"{k}={v}" for k, v in settings.items()), hashes)
     lt.save(out)
-    manifest.record(inputs, {**settings, "camera": cam}, [out], summ, time.perf_counter() - tc)
+    manifest.record(inputs, {**settings, "camera": cam}, [out], summ, seconds + time.perf_counter() - tc)
     return summ
