@@ -64,3 +64,19 @@ def test_keypoints_split_into_frame_ranges_write_one_file_per_camera(ws, cli):  
     # every range starts from the detector; within a range the ROIs follow as in one unit
     assert cam["detector_calls"] + cam["followed"] == one["detector_calls"] + one["followed"]
     assert cam["detector_calls"] >= one["detector_calls"]
+
+
+def test_crop_shards_are_units_with_their_own_random_streams(tmp_path):
+    """Each crop shard is a unit of work seeded by its index: the same shards whether one process
+    or a pool renders them, and a shard does not depend on how many crops come after it."""
+    from mamma_kit.synth.crops import write_crop_shards
+
+    a = write_crop_shards("tiny", tmp_path / "a", 4, seed=3, shard_size=2, workers=1)
+    b = write_crop_shards("tiny", tmp_path / "b", 3, seed=3, shard_size=2, workers=2)  # a pool of 2
+    assert a["shards"] == b["shards"] == ["shard_0000.npz", "shard_0001.npz"]
+    assert (a["count"], b["count"]) == (4, 3)
+    a0, b0 = np.load(tmp_path / "a" / "shard_0000.npz"), np.load(tmp_path / "b" / "shard_0000.npz")
+    assert set(a0.files) == set(b0.files) and all(np.array_equal(a0[k], b0[k]) for k in a0.files)
+    a1, b1 = np.load(tmp_path / "a" / "shard_0001.npz"), np.load(tmp_path / "b" / "shard_0001.npz")
+    assert len(b1["images"]) == 1 and all(np.array_equal(a1[k][:1], b1[k]) for k in a1.files)
+    assert not np.array_equal(a0["images"][:1], a1["images"][:1])

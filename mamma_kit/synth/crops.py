@@ -84,21 +84,51 @@ def _perturb(clip_params: dict, rng: np.random.Generator, amount: float) -> None
         clip_params[key] = hp.reshape(P, 45)
 
 
-def write_crop_shards(recipe_ref, out: str | Path, n: int, seed: int | None = None, shard_size: int = 500) -> dict:
+def write_crop_shards(recipe_ref, out: str | Path, n: int, seed: int | None = None, shard_size: int = 500,
+                      workers: int | None = None) -> dict:
     """Render ``n`` person crops into shards under ``out`` (recipe gives defaults only; the
-    scenes are randomised far beyond one recipe)."""
+    scenes are randomised far beyond one recipe). Each shard is a unit of work with its own
+    random stream (from the seed and the shard's index), so the shards are the same whatever
+    executor or worker count renders them."""
+    from functools import partial
+
+    from mamma_kit.body.model import load_body_model
+    from mamma_kit.body.skeleton import LANDMARK_PART_NAMES
+    from mamma_kit.core.executor import run_units
+    from mamma_kit.synth.recipe import load_recipe
+
+    recipe = load_recipe(recipe_ref, seed)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    units = [(i, min(shard_size, n - start)) for i, start in enumerate(range(0, n, shard_size))]
+    done = run_units(partial(render_shard, out=out, seed=recipe.seed), units, workers)
+    kinds_used: dict[str, int] = {}
+    for part in done:
+        for k, v in part["scene_kinds"].items():
+            kinds_used[k] = kinds_used.get(k, 0) + v
+    body = load_body_model("open")
+    meta = {"landmark_set": f"{body.name}:{body.landmarks.source}", "body_model": body.name,
+            "landmark_parts": body.landmark_parts.tolist(), "landmark_part_names": list(LANDMARK_PART_NAMES),
+            "body_sha256": body.sha256, "recipe": recipe.name, "seed": recipe.seed,
+            "count": sum(part["count"] for part in done), "crop_hw": list(CROP_HW), "context": CONTEXT,
+            "shards": [part["shard"] for part in done], "scene_kinds": kinds_used,
+            "seconds": round(time.perf_counter() - t0, 1)}
+    write_json(out / "meta.json", meta)
+    return meta
+
+
+def render_shard(unit: tuple[int, int], out: Path, seed: int) -> dict:
+    """One shard (index, crops) of write_crop_shards: out/shard_<index>.npz (here or in a worker)."""
     from mamma_kit.body.lbs import pose_mesh_np
     from mamma_kit.body.model import load_body_model
     from mamma_kit.body.skeleton import PART_NAMES
     from mamma_kit.synth.interact import fit_floor_and_contacts
     from mamma_kit.synth.scene import CONTACT_DIST, FLOOR_DIST, person_contact, sample_betas
-    from mamma_kit.synth.recipe import load_recipe
     from mamma_kit.synth.render import vertex_normals
 
-    recipe = load_recipe(recipe_ref, seed)
-    rng = np.random.default_rng(recipe.seed * 7919 + 17)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    index, n = unit
+    rng = np.random.default_rng([seed, 7919, index])
     body = load_body_model("open")
     faces = body.np.faces
     lm = body.landmark_ids
@@ -106,12 +136,12 @@ def write_crop_shards(recipe_ref, out: str | Path, n: int, seed: int | None = No
     arm_rest = arm_rest_rotations(body.np.J_template)
     H, W = CROP_HW
     buf: dict[str, list] = {k: [] for k in ("images", "instance", "xy", "visibility", "contact", "floor_contact", "box")}
-    shards, made, t0 = [], 0, time.perf_counter()
+    made = 0
     kinds_used: dict[str, int] = {}
     envs: list[Environment] = []
     progress = log.progress_bar()
     with progress:
-        task = progress.add_task("crops", total=n)
+        task = progress.add_task(f"crops, shard {index}", total=n)
         while made < n:
             couple = rng.random() < 0.4
             kind = str(rng.choice(COUPLE_KINDS if couple else SINGLE_KINDS))
@@ -181,23 +211,11 @@ def write_crop_shards(recipe_ref, out: str | Path, n: int, seed: int | None = No
                     buf["box"].append(np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], np.float32))
                     made += 1
                     progress.advance(task)
-                    if len(buf["images"]) >= shard_size or made >= n:
-                        shards.append(_flush(out, len(shards), buf))
                     if made >= n:
                         break
                 if made >= n:
                     break
-    if buf["images"]:
-        shards.append(_flush(out, len(shards), buf))
-    from mamma_kit.body.skeleton import LANDMARK_PART_NAMES
-
-    meta = {"landmark_set": f"{body.name}:{body.landmarks.source}", "body_model": body.name,
-            "landmark_parts": body.landmark_parts.tolist(), "landmark_part_names": list(LANDMARK_PART_NAMES),
-            "body_sha256": body.sha256, "recipe": recipe.name, "seed": recipe.seed, "count": made,
-            "crop_hw": list(CROP_HW), "context": CONTEXT, "shards": shards, "scene_kinds": kinds_used,
-            "seconds": round(time.perf_counter() - t0, 1)}
-    write_json(out / "meta.json", meta)
-    return meta
+    return {"shard": _flush(out, index, buf), "count": made, "scene_kinds": kinds_used}
 
 
 def _flush(out: Path, index: int, buf: dict) -> str:
