@@ -95,10 +95,14 @@ def render(out: Path, args) -> None:
     w, h = (int(v) for v in args.size.split("x"))
     rig = ring(args.cams, args.radius, args.height, (w, h), args.f, args.seed)
     spec = load_board_spec(args.board)
-    traj = plan_session(rig, spec, seed=args.seed, duration_s=args.duration, n_closeups=args.closeups)
+    behind = [c for c in (args.behind or "").split(",") if c]
+    # with a camera behind the board no floor board is laid (face up, it would show that camera its front)
+    traj = plan_session(rig, spec, seed=args.seed, duration_s=args.duration, n_closeups=args.closeups,
+                        floor_pose=not behind, behind=behind)
     t0 = time.perf_counter()
     render_board_session(out / "board", rig, spec, seed=args.seed, duration_s=args.duration, fps=args.fps,
-                         trajectory=traj, supersample=2, progress=False, workers=None)  # a process per camera
+                         trajectory=traj, supersample=2, progress=False, workers=None,  # a process per camera
+                         floor_pose=not behind, back=args.back, behind=behind)
     write_calibration(out / "gt.toml", rig)
     print(f"rendered {args.cams} x {int(args.duration * args.fps)} frames at {w}x{h} in "
           f"{time.perf_counter() - t0:.0f} s", flush=True)
@@ -196,6 +200,10 @@ def main() -> None:
     ap.add_argument("--no-anipose", action="store_true")
     ap.add_argument("--rerender", action="store_true")
     ap.add_argument("--rerun-anipose", action="store_true", help="recompute aniposelib's result even if present")
+    ap.add_argument("--behind", default="", help="cameras (comma-separated) that see the hand-held board only from "
+                                                 "behind; no floor board then, and the world frame is not compared")
+    ap.add_argument("--back", default="mirror", choices=["plain", "mirror", "see-through"],
+                    help="the board's back side with --behind: mirror = printed on both sides")
     args = ap.parse_args()
 
     from mamma_kit.calibration.board import load_board_spec
@@ -219,10 +227,12 @@ def main() -> None:
         rows.append({"tool": tool, "seconds": res["seconds"], "rms_px": rms, **ev})
         print(f"{tool}: {json.dumps(rows[-1])}", flush=True)
 
-    r = run_mamma(videos, args.board, out / "mamma.toml", ["--no-figures"])
-    add("mamma-kit", r, out / "mamma.toml", "mamma-kit", True, r.get("summary", {}).get("rms_px"))
-    r = run_mamma(videos, args.board, out / "mamma-synced.toml", ["--no-figures", "--synced"])
-    add("mamma-kit --synced", r, out / "mamma-synced.toml", "mamma-kit", True, r.get("summary", {}).get("rms_px"))
+    floor = ["--no-floor"] if args.behind else []
+    pinned = not args.behind  # without a floor board the world frame is the reference camera's
+    r = run_mamma(videos, args.board, out / "mamma.toml", ["--no-figures", *floor])
+    add("mamma-kit", r, out / "mamma.toml", "mamma-kit", pinned, r.get("summary", {}).get("rms_px"))
+    r = run_mamma(videos, args.board, out / "mamma-synced.toml", ["--no-figures", "--synced", *floor])
+    add("mamma-kit --synced", r, out / "mamma-synced.toml", "mamma-kit", pinned, r.get("summary", {}).get("rms_px"))
     if not args.no_anipose:
         r = run_anipose(videos, names, spec, out / "anipose.toml", args.fps, args.rerun_anipose)
         add("aniposelib", r, out / "anipose.toml", "anipose", False, r.get("error"))

@@ -108,3 +108,25 @@ def test_tiny_exact_landmarks_fit_hands(tiny_fit, tmp_path):
     ev = evaluate_results(ws, [r], penetration_frames=None)
     assert ev["mpjpe_body_mm"] <= EXACT_BODY_MAX_MM, ev
     assert ev["mpjpe_hands_mm"] <= EXACT_HANDS_MAX_MM, ev
+
+
+def test_chunks_as_executor_units_give_fitter_fit(tiny_fit):
+    """fit_workspace runs the chunks as units of the executor (fitting/units.py); the result is
+    Fitter.fit's own: the same shape fit, chunks and cross-fading."""
+    from pathlib import Path
+
+    from mamma_kit.body.model import load_body_model
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.fitting.data import load_fit_data
+    from mamma_kit.fitting.stages import FitConfig, Fitter
+    from mamma_kit.fitting.units import fit_in_units
+
+    model = load_body_model("open")
+    data = load_fit_data(Workspace(Path(tiny_fit.root)), n_landmarks=len(model.landmark_ids))
+    cfg = FitConfig(stages=1, chunk=8, overlap=2, shape_frames=6)
+    assert len(Fitter(model, data, cfg).plan_chunks(len(data.frame_times))) > 1
+    a = Fitter(model, data, cfg).fit()
+    b = fit_in_units(Fitter(model, data, cfg))
+    assert a.chunks == b.chunks
+    for key in ("betas", "pose", "transl", "joints", "observed"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key

@@ -531,29 +531,47 @@ class Fitter:
         starts = np.linspace(0, T - size, n).round().astype(int)
         return [(int(s), int(s) + size) for s in starts]
 
-    def fit(self) -> "FitResult":
+    def fit(self, run_chunks=None) -> "FitResult":
         """Every chunk fitted (one shape per person: from frames spread over the sequence
-        when there are several chunks), cross-faded as axis-angle where chunks overlap."""
+        when there are several chunks), cross-faded as axis-angle where chunks overlap.
+        ``run_chunks(parts, betas) -> [ChunkResult]`` fits the chunks' data (default: here, in
+        order); fitting/units.py hands them to the executor."""
+        d = self.data
+        chunks = self.plan_chunks(len(d.frame_times))
+        betas, stats = self.shape_fit(chunks)
+        parts = [d.slice_frames(slice(s, e)) for s, e in chunks]
+        if run_chunks is None:
+            results = [self.fit_chunk(part, betas) for part in log.track(parts, "fit chunks")]
+        else:
+            results = run_chunks(parts, betas)
+        return self.join(chunks, results, betas, stats)
+
+    def shape_fit(self, chunks: list[tuple[int, int]]) -> tuple[np.ndarray | None, dict[str, "StageStats"]]:
+        """One shape per person (P, 16) from frames spread over the whole sequence when there are
+        several chunks (stages 1-2), and its stats; (None, {}) for one chunk (it fits its own)."""
+        stats: dict[str, StageStats] = {}
+        if len(chunks) <= 1:
+            return None, stats
+        T = len(self.data.frame_times)
+        idx = np.unique(np.linspace(0, T - 1, min(self.cfg.shape_frames, T)).round().astype(int))
+        r = self.fit_chunk(self.data.slice_frames(idx), None, stages=2)
+        for k, st in r.stats.items():
+            stats.setdefault("shape_" + k, StageStats("shape_" + k)).add(st)
+        return r.betas, stats
+
+    def join(self, chunks: list[tuple[int, int]], results: list[ChunkResult], betas: np.ndarray | None,
+             stats: dict[str, "StageStats"]) -> "FitResult":
+        """The chunks' results cross-faded into one FitResult (axis-angle from here on)."""
         d = self.data
         C, P, T, L = d.shape
-        chunks = self.plan_chunks(T)
-        stats: dict[str, StageStats] = {}
-        betas = None
-        if len(chunks) > 1:  # one shape per person, from frames spread over the whole sequence
-            idx = np.unique(np.linspace(0, T - 1, min(self.cfg.shape_frames, T)).round().astype(int))
-            r = self.fit_chunk(d.slice_frames(idx), None, stages=2)
-            betas = r.betas
-            for k, s in r.stats.items():
-                stats.setdefault("shape_" + k, StageStats("shape_" + k)).add(s)
+        if betas is None:  # one chunk: its own shape
+            betas = results[0].betas
         pose = np.zeros((P, T, sk.NUM_JOINTS, 3))
         transl = np.zeros((P, T, 3))
         snaps: dict[str, list] = {}
         wsum = np.zeros(T)
         observed = np.zeros((P, T), bool)
-        for ci, (s, e) in enumerate(log.track(chunks, "fit chunks")):
-            r = self.fit_chunk(d.slice_frames(slice(s, e)), betas)
-            if betas is None:
-                betas = r.betas
+        for ci, ((s, e), r) in enumerate(zip(chunks, results)):
             w = cross_fade_weights(chunks, ci)
             for key, st in [(None, r.state), *r.snapshots.items()]:
                 acc = [pose, transl] if key is None else snaps.setdefault(key, [np.zeros_like(pose),
