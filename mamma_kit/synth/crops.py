@@ -120,6 +120,20 @@ def write_crop_shards(recipe_ref, out: str | Path, n: int, seed: int | None = No
 
 def render_shard(unit: tuple[int, int], out: Path, seed: int) -> dict:
     """One shard (index, crops) of write_crop_shards: out/shard_<index>.npz (here or in a worker)."""
+    import torch
+
+    index, n = unit
+    # one torch thread, as in a pool worker: the contact solver's sums then add up in the same order
+    # wherever the shard renders, so a shard is the same on every executor
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _render_shard(index, n, out, seed)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _render_shard(index: int, n: int, out: Path, seed: int) -> dict:
     from mamma_kit.body.lbs import pose_mesh_np
     from mamma_kit.body.model import load_body_model
     from mamma_kit.body.skeleton import PART_NAMES
@@ -127,7 +141,6 @@ def render_shard(unit: tuple[int, int], out: Path, seed: int) -> dict:
     from mamma_kit.synth.scene import CONTACT_DIST, FLOOR_DIST, person_contact, sample_betas
     from mamma_kit.synth.render import vertex_normals
 
-    index, n = unit
     rng = np.random.default_rng([seed, 7919, index])
     body = load_body_model("open")
     faces = body.np.faces
