@@ -126,14 +126,15 @@ def write_npz(path: str | os.PathLike, compress: bool = True, **arrays: Any) -> 
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def read_npz(path: str | os.PathLike, what: str = "array file") -> dict[str, np.ndarray]:
-    """Load every array of an .npz without unpickling anything."""
+def read_npz(path: str | os.PathLike, what: str = "array file", keys: tuple[str, ...] | None = None
+             ) -> dict[str, np.ndarray]:
+    """Load every array of an .npz (or only ``keys``: the others are not read) without unpickling anything."""
     p = Path(path)
     if not p.is_file():
         raise UserError(f"{what} not found: {p}", "run the stage that writes it first")
     try:
         with np.load(p, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+            return {k: z[k] for k in z.files if keys is None or k in keys}
     except ValueError as e:
         if "pickle" in str(e).lower():
             raise UserError(

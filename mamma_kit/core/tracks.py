@@ -167,6 +167,13 @@ class MaskTracks:
                    json.loads(str(d.get("producer", "{}"))))
 
 
+def track_frame_count(path: str | Path) -> int:
+    """Frames of a track file (masks, keypoints, landmarks) without reading its other arrays."""
+    d = read_npz(path, "track file", keys=("frame_times",))
+    _require(d, path, ("frame_times",))
+    return len(d["frame_times"])
+
+
 # ---- landmarks --------------------------------------------------------------------------
 @dataclass
 class LandmarkTracks:

@@ -19,7 +19,7 @@ import numpy as np
 from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.manifest import StageManifest, producer
-from mamma_kit.core.tracks import KeypointTracks, MaskTracks, nearest_frames
+from mamma_kit.core.tracks import KeypointTracks, MaskTracks, join_frame_ranges, nearest_frames, track_frame_count
 from mamma_kit.keypoints.estimator import MIN_FOLLOW_FLAG
 
 MODEL_NAME = "blazepose-ghum-full"
@@ -128,12 +128,11 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
         else:
             todo.append(cam)
     from mamma_kit.core.executor import frame_ranges, run_units
-    from mamma_kit.core.tracks import join_frame_ranges
     _ESTIMATORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
     # units: (camera, frame range); one range per camera unless unit_frames (or
     # MAMMA_KIT_UNIT_FRAMES) splits it. LiteRT uses every core, so locally they run here in order
-    units = [(cam, r) for cam in todo for r in frame_ranges(len(MaskTracks.load(ws.mask_file(cam)).frame_times),
+    units = [(cam, r) for cam in todo for r in frame_ranges(track_frame_count(ws.mask_file(cam)),
                                                           unit_frames)]
     unit = partial(_keypoints_range, root=ws.root, models=models, settings=settings, blank=blank,
                    pictures=pictures, threads=threads)

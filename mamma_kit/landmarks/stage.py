@@ -81,13 +81,13 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
         else:
             todo.append(cam)
     from mamma_kit.core.executor import frame_ranges, run_units
-    from mamma_kit.core.tracks import MaskTracks, join_frame_ranges
+    from mamma_kit.core.tracks import join_frame_ranges, track_frame_count
     _PREDICTORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
     # units: (camera, frame range); one range per camera unless unit_frames (or MAMMA_KIT_UNIT_FRAMES)
     # splits it (network cameras only). The network uses every core, so locally they run here in order
     units = [(cam, r) for cam in todo for r in
-             ([None] if source == "gt" else frame_ranges(len(MaskTracks.load(ws.mask_file(cam)).frame_times),
+             ([None] if source == "gt" else frame_ranges(track_frame_count(ws.mask_file(cam)),
                                                            unit_frames))]
     unit = partial(_landmarks_range, root=ws.root, source=source, settings=settings, unit_inputs=unit_inputs,
                    noise=noise, outliers=outliers, seed=seed, loaded=loaded, device=device, batch=batch)
