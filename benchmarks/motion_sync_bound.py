@@ -52,29 +52,13 @@ JOINT_FRAMES = 3  # the joint search's range per camera, in whole frames
 GRID_MS = np.arange(-60.0, 60.01, 0.5)
 
 
-def signed_distance(F_33: np.ndarray, xa_n2: np.ndarray, xb_n2: np.ndarray) -> np.ndarray:
-    """Signed distance (px) of b's points to the epipolar lines of a's points, F: a -> b."""
-    ha = np.concatenate([xa_n2, np.ones_like(xa_n2[..., :1])], -1)
-    hb = np.concatenate([xb_n2, np.ones_like(xb_n2[..., :1])], -1)
-    lines = ha @ F_33.T
-    return (hb * lines).sum(-1) / np.hypot(lines[..., 0], lines[..., 1])
-
-
-def pair_series(a: M.View, b: M.View, F_33, pairs, offset: float) -> np.ndarray:
-    """(T, S) signed distances in box heights, S = paired tracks x limb joints, NaN where unseen."""
-    xb, hb = b.at(a.times - offset)
-    cols = [signed_distance(F_33, a.xy[:, i], xb[:, j]) / np.sqrt(a.height[:, i, None] * hb[:, j, None])
-            for i, j in pairs]
-    return np.concatenate(cols, 1)
-
-
 def pair_bound(a: M.View, b: M.View, offset: float) -> dict | None:
     F = a.cam.fundamental_to(b.cam)
     pairs = M.pair_tracks(a, b, F, offset)
     if not pairs:
         return None
-    s0 = pair_series(a, b, F, pairs, offset)
-    rate = (pair_series(a, b, F, pairs, offset + DT) - s0) / DT  # d distance / d offset
+    s0 = M.signed_series(a, b, F, pairs, offset)
+    rate = (M.signed_series(a, b, F, pairs, offset + DT) - s0) / DT  # d distance / d offset
     ok = np.isfinite(s0) & np.isfinite(rate)
     med = np.median(s0[ok])
     sigma = 1.4826 * np.median(np.abs(s0[ok] - med))
@@ -92,31 +76,18 @@ def pair_bound(a: M.View, b: M.View, offset: float) -> dict | None:
 
 
 def gn_offset(a: M.View, b: M.View, F_33, pairs, offset: float, frames: np.ndarray) -> float:
-    """Offset of b by robust Gauss-Newton on the signed distances of a's ``frames``, from ``offset``;
-    the derivative from b's points half a frame either side (its own noise pulls neither way)."""
-    T = b.period
+    """Offset of b by robust Gauss-Newton on the signed distances of a's ``frames``, from ``offset``
+    (motion sync's own normal equations, one pair)."""
     o = offset
     for _ in range(15):
-        s0 = pair_series_at(a, b, F_33, pairs, o, frames)
-        r = (pair_series_at(a, b, F_33, pairs, o + 0.5 * T, frames) - pair_series_at(a, b, F_33, pairs, o - 0.5 * T, frames)) / T
-        ok = np.isfinite(s0) & np.isfinite(r)
-        if ok.sum() < 50:
+        h, q, n = M.normal_equations(a, b, F_33, pairs, o, frames)
+        if n == 0:
             return np.nan
-        med = np.median(s0[ok])
-        w = ok & (np.abs(s0 - med) < 3 * 1.4826 * np.median(np.abs(s0[ok] - med)))
-        step = float(np.clip(-np.sum(r[w] * s0[w]) / np.sum(r[w] ** 2), -0.5 * T, 0.5 * T))
+        step = float(np.clip(-q / h, -0.5 * b.period, 0.5 * b.period))
         o += step
-        if abs(step) < 1e-5 * T:
+        if abs(step) < 1e-5 * b.period:
             break
     return o
-
-
-def pair_series_at(a: M.View, b: M.View, F_33, pairs, offset: float, frames: np.ndarray) -> np.ndarray:
-    """pair_series on a's ``frames`` only."""
-    xb, hb = b.at(a.times[frames] - offset)
-    cols = [signed_distance(F_33, a.xy[frames, i], xb[:, j]) / np.sqrt(a.height[frames, i, None] * hb[:, j, None])
-            for i, j in pairs]
-    return np.concatenate(cols, 1)
 
 
 def split_halves(a: M.View, b: M.View, offset: float) -> tuple[float, float] | None:
