@@ -9,7 +9,7 @@ mapping to the reference camera against the true clocks, at the start and the en
 take; peers give one constant offset, so their error grows with drift.
 
     nice -n 10 /work/venv/bin/python benchmarks/sync_vs_peers.py [--quick] [--skip-peers]
-        [--video-only | --audio-only] [--scale 0.3]
+        [--video-only | --audio-only] [--scale 0.3] [--seeds 11 12]
 
 Motion and flash rows: recipes iphone-outdoor-duo and crowd-6 rendered with the audio removed
 (no claps, LTC or tmcd), 4 cameras, the recipes' unrelated clock offsets (several frames), drift
@@ -18,7 +18,9 @@ exposure 0.5-1 frame, rolling-shutter readout 0.3-0.8 frame, per camera). Then, 
 `track --backend pose`, `keypoints`, `sync --method motion` (with the true calibration, so only the
 sync is measured), `sync --method flash` and `sync` (auto). The 2-minute drift take renders only
 three 3-second windows (start, middle, end; render.windows_s), the frames a line fit through the
-windows' offsets needs, at a tenth of the cost of the whole take.
+windows' offsets needs, at a tenth of the cost of the whole take. --seeds adds the short captures
+rendered again with other seeds (other people, motions, placements and clocks), held out from
+any tuning.
 """
 
 from __future__ import annotations
@@ -198,10 +200,11 @@ def run_cli(*args) -> tuple[str, float]:
 def make_video_case(case: dict, root: Path, scale: float) -> dict:
     """Render (or reuse) the case's workspace and run track + keypoints on it."""
     ws = root / re.sub(r"[^a-z0-9]+", "-", case["name"].lower()).strip("-")
+    seed = ["--seed", case["seed"]] if "seed" in case else []
     secs = {}
     if not (ws / "gt" / "synth.json").is_file():
         root.mkdir(parents=True, exist_ok=True)
-        _, secs["render"] = run_cli("synth", video_recipe(case, root, scale), "--out", ws, "--no-board", "-q")
+        _, secs["render"] = run_cli("synth", video_recipe(case, root, scale), "--out", ws, "--no-board", "-q", *seed)
     shutil.copyfile(ws / "gt" / "calibration.toml", ws / "calibration.toml")
     people = json.loads((ws / "gt" / "synth.json").read_text())["people"]
     _, secs["track"] = run_cli("track", ws, "--backend", "pose", "--people", people, "-q")
@@ -252,6 +255,8 @@ def video_rows(case: dict) -> list[tuple]:
 def video_main(args) -> None:
     t0 = time.perf_counter()
     cases = [c for c in VIDEO_CASES if not args.quick or "2 min" not in c["name"]]
+    cases += [dict(c, name=f"{c['name']}, seed {seed}", seed=seed) for seed in args.seeds for c in VIDEO_CASES
+              if "2 min" not in c["name"]]
     rows = []
     for c in cases:
         done = make_video_case(c, args.out / "video", args.scale)
@@ -287,6 +292,8 @@ def main() -> None:
     ap.add_argument("--video-only", action="store_true", help="only the motion and flash rows")
     ap.add_argument("--audio-only", action="store_true", help="only the clap rows and the peers")
     ap.add_argument("--scale", type=float, default=0.3, help="render scale of the motion and flash captures")
+    ap.add_argument("--seeds", type=int, nargs="*", default=[],
+                    help="also the short motion and flash captures rendered with these seeds")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.audio_only:
