@@ -11,11 +11,12 @@ the calibrated rig. For each camera against the reference:
 3. sub-frame offset: the offset that minimises the paired keypoints' robust symmetric epipolar
    distance (in box heights), the other view's keypoints interpolated at each frame's own
    timestamp (variable frame rate); a scan at a tenth of a frame, then a bounded 1-D minimisation;
-4. joint refinement: all cameras' offsets at once by robust Gauss-Newton on every kept pair's
-   signed epipolar distances (the derivative from the other view's points half a frame either
-   side, so its own noise pulls neither way), every camera pair's tracks paired again at the
-   pairs' joint solve, started there and kept within LOOP_TOLERANCE_FRAMES of it. One pair's capped-distance minimum is flat and noisy on real
-   footage (the real recording: 9-12 ms off); the pairs together pull it to 0.6-3.5 ms;
+4. joint refinement: all cameras' offsets at once by robust Gauss-Newton on every pair's signed
+   epipolar distances (the derivative from the other view's points half a frame either side, so
+   its own noise pulls neither way), each pair's tracks paired again at step 3's joint solve,
+   started there and kept within LOOP_TOLERANCE_FRAMES of it. One pair's capped-distance minimum
+   is flat and noisy on real footage (the real recording: 9-12 ms off); the pairs together pull
+   it to 0.6-3.6 ms;
 5. drift: on takes of DRIFT_MIN_TAKE_S or more, step 3 in windows of DRIFT_WINDOW_S (split at gaps
    in the timestamps too), a weighted line through the windows' offsets per camera pair, and every
    camera's rate and offset from all pairs jointly, like the offsets.
@@ -167,6 +168,19 @@ def normal_equations(a: View, b: View, F: np.ndarray, pairs, offset: float, fram
     sig = max(1.4826 * float(np.median(np.abs(s0[ok] - med))), 1e-6)
     w = ok & (np.abs(s0 - med) < 3 * sig)
     return float(np.sum(r[w] ** 2)) / sig ** 2, float(np.sum(r[w] * s0[w])) / sig ** 2, int(w.sum())
+
+
+def all_track_pairs(views: dict[str, View], names: list[str], offsets: np.ndarray) -> dict[tuple[str, str], list]:
+    """Every camera pair's tracks paired at ``offsets``: a pair whose own minimum was off (and so was
+    dropped from the joint solve, or weighed little) still carries its share of the motion."""
+    out = {}
+    for i, a in enumerate(names):
+        for j in range(i + 1, len(names)):
+            b = names[j]
+            tp = pair_tracks(views[a], views[b], views[a].cam.fundamental_to(views[b].cam), offsets[j] - offsets[i])
+            if tp:
+                out[(a, b)] = tp
+    return out
 
 
 def refine_jointly(views: dict[str, View], names: list[str], reference: str, offsets: np.ndarray,
@@ -426,16 +440,7 @@ def _motion_clocks(kts, rig, reference, max_lag_s):
         used = trial
     rows, wts = [rows[i] for i in used], [wts[i] for i in used]
     start = offsets.copy()
-    # every camera pair takes part, its tracks paired again at the joint solve: a pair whose own
-    # minimum was off (and so was dropped or weighed little) still carries its share of the motion
-    track_pairs = {}
-    for i, a in enumerate(names):
-        for j in range(i + 1, len(names)):
-            b = names[j]
-            tp = pair_tracks(views[a], views[b], views[a].cam.fundamental_to(views[b].cam), start[j] - start[i])
-            if tp:
-                track_pairs[(a, b)] = tp
-    offsets, sd = refine_jointly(views, names, reference, offsets, track_pairs)
+    offsets, sd = refine_jointly(views, names, reference, offsets, all_track_pairs(views, names, start))
     clocks, diag = {}, {}
     for k, n in enumerate(names):
         mine = [i for i, r in enumerate(rows) if r[k] != 0]
