@@ -126,7 +126,7 @@ def joint_search(views: dict[str, M.View], true_offsets: dict[str, float]) -> di
     scores.sort()
     truth = next(k for k, (_, ks) in enumerate(scores) if not any(ks))
     return {"truth_rank": truth + 1, "combinations": len(scores), "best_frames": list(scores[0][1]),
-            "truth_excess_pct": 100 * (dict((ks, v) for v, ks in scores)[(0,) * (len(names) - 1)] / scores[0][0] - 1)}
+            "truth_excess_pct": 100 * (scores[truth][0] / scores[0][0] - 1)}
 
 
 def camera_bounds(names: list[str], pairs: dict[tuple[str, str], dict]) -> dict[str, float]:

@@ -188,18 +188,17 @@ def refine_jointly(views: dict[str, View], names: list[str], reference: str, off
     """Every camera's offset (t_ref = t_cam + o) by Gauss-Newton on all pairs' signed distances at
     once (module docstring, step 4), from ``offsets``; a camera that would move more than
     LOOP_TOLERANCE_FRAMES keeps its start. -> (offsets, their standard deviations if the errors were
-    independent, s; NaN where a camera is in no pair)."""
+    independent, s; the start and NaN when the pairs do not tie every camera to the reference)."""
     C, ref = len(names), names.index(reference)
     free = [k for k in range(C) if k != ref]
     period = min(v.period for v in views.values())
+    terms = [(names.index(a), names.index(b), views[a], views[b], views[a].cam.fundamental_to(views[b].cam), tp)
+             for (a, b), tp in track_pairs.items()]
     off = offsets.copy()
-    H = np.zeros((C, C))
     for _ in range(iterations):
         H, g = np.zeros((C, C)), np.zeros(C)
-        for (an, bn), pairs in track_pairs.items():
-            i, j = names.index(an), names.index(bn)
-            h, q, n = normal_equations(views[an], views[bn], views[an].cam.fundamental_to(views[bn].cam), pairs,
-                                       off[j] - off[i])
+        for i, j, va, vb, F, pairs in terms:
+            h, q, n = normal_equations(va, vb, F, pairs, off[j] - off[i])
             if n == 0:
                 continue
             e = np.zeros(C)
@@ -217,7 +216,7 @@ def refine_jointly(views: dict[str, View], names: list[str], reference: str, off
     far = np.abs(off - offsets) > LOOP_TOLERANCE_FRAMES * period
     off[far] = offsets[far]
     sd = np.zeros(C)
-    sd[free] = np.sqrt(np.clip(np.diag(np.linalg.pinv(H[np.ix_(free, free)])), 0, None))
+    sd[free] = np.sqrt(np.diag(np.linalg.inv(Hf)))
     return off, sd
 
 
