@@ -20,6 +20,8 @@ reprojection error per camera from the fit report.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -170,7 +172,8 @@ def penetration(model, verts_ptv3: np.ndarray, frames: np.ndarray | None = None,
             "frames": int(len(frames))}
 
 
-def _match_people(fit: list[np.ndarray], gt: list[np.ndarray]) -> list[tuple[int, int]]:
+def match_people(fit: list[np.ndarray], gt: list[np.ndarray]) -> list[tuple[int, int]]:
+    """(fit index, gt index) pairs with the smallest total mean joint distance; joints (T, J, 3)."""
     from scipy.optimize import linear_sum_assignment
 
     cost = np.array([[np.nanmean(np.linalg.norm(f - g, axis=-1)) for g in gt] for f in fit])
@@ -178,8 +181,27 @@ def _match_people(fit: list[np.ndarray], gt: list[np.ndarray]) -> list[tuple[int
     return list(zip(r.tolist(), c.tolist()))
 
 
-def evaluate_results(ws: Workspace, results: list[SmplxResult], penetration_frames: int | None = 60) -> dict | None:
-    """Metrics for fit results (see module doc); None without ground truth."""
+@dataclass
+class Matched:
+    """Fit results beside the ground truth at the fit's frames that overlap it (module doc).
+
+    keep (T,) the fit frames used; world(X) maps the fit's world onto the truth's; pairs
+    (fit index, gt index); fit_joints / gt_joints per person (T', 55, 3) m, in the truth's
+    world; gt_params per gt person, its parameters at the kept frames."""
+    model: object
+    keep: np.ndarray
+    how_time: str
+    how_world: str
+    world: Callable[[np.ndarray], np.ndarray]
+    pairs: list[tuple[int, int]]
+    fit_joints: list[np.ndarray]
+    gt_joints: list[np.ndarray]
+    gt_params: list[dict]
+
+
+def match_results(ws: Workspace, results: list[SmplxResult]) -> Matched | dict | None:
+    """Fit results matched to ground truth in time, space and identity; None without ground
+    truth, {"error": ...} when they cannot be compared."""
     from mamma_kit.body.lbs import pose_mesh_np
     from mamma_kit.body.model import load_body_model
     from mamma_kit.core.timingfile import read_timing
@@ -216,11 +238,20 @@ def evaluate_results(ws: Workspace, results: list[SmplxResult], penetration_fram
 
     fitJ = [world(r.joints[keep]) for r in results]
     gt_prm = [params_at(g, scene_t[keep]) for g in gts]
-    gtJ = []
-    for g, prm in zip(gts, gt_prm):
-        _, j = pose_mesh_np(model, {**{k: v for k, v in prm.items() if k != "betas"}, "betas": prm["betas"]})
-        gtJ.append(j.astype(np.float64))
-    pairs = _match_people(fitJ, gtJ)
+    gtJ = [pose_mesh_np(model, prm)[1].astype(np.float64) for prm in gt_prm]
+    return Matched(model, keep, how_t, how_w, world, match_people(fitJ, gtJ), fitJ, gtJ, gt_prm)
+
+
+def evaluate_results(ws: Workspace, results: list[SmplxResult], penetration_frames: int | None = 60) -> dict | None:
+    """Metrics for fit results (see module doc); None without ground truth."""
+    from mamma_kit.body.lbs import pose_mesh_np
+
+    m = match_results(ws, results)
+    if not isinstance(m, Matched):
+        return m
+    model, keep, world, pairs, fitJ, gtJ, gt_prm = m.model, m.keep, m.world, m.pairs, m.fit_joints, m.gt_joints, \
+        m.gt_params
+    how_t, how_w = m.how_time, m.how_world
     hand_v = np.isin(model.vertex_part, [i for i, n in enumerate(sk.PART_NAMES) if n.endswith("hand")])
     per = []
     e_all, pa_all, v_all = [], [], []

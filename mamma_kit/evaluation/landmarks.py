@@ -18,7 +18,7 @@ from mamma_kit.landmarks.gt import gt_box_heights, gt_landmarks_file, gt_masks_f
 from mamma_kit.landmarks.metrics import landmark_metrics
 
 
-def _pairs(ws: Workspace, cam: str) -> tuple[dict, str] | None:
+def landmark_pairs(ws: Workspace, cam: str) -> tuple[dict, str] | None:
     """Matched (prediction, ground truth) arrays of one camera, flattened over instances."""
     pred = LandmarkTracks.load(ws.landmarks_file(cam))
     gt = LandmarkTracks.load(gt_landmarks_file(ws, cam))
@@ -64,7 +64,7 @@ def evaluate(ws: Workspace) -> dict | None:
         return None
     parts, per_cam = [], {}
     for cam in cams:
-        res = _pairs(ws, cam)
+        res = landmark_pairs(ws, cam)
         if res is None:
             per_cam[cam] = {"matched": False, "reason": "other landmark count than the ground truth, or track ids "
                                                         "neither gt ids nor matchable by masks"}
