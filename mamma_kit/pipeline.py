@@ -18,7 +18,7 @@ Stage options come from capture.toml, e.g.::
     [settings.calibrate]   model = "radtan"   detect_fps = 10   max_views = 40   floor = true
     [settings.sync]        method = "auto"    (and every sync setting; see sync/*.toml)
     [settings.track]       backend = "builtin"   (sam2: sam2_checkpoint, sam2_config, chunk, device)
-    [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8   (source = "gt" on synthetic data)
+    [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8  hands = "off"   (source = "gt" on synthetic data)
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
     [settings.report]      video = true
@@ -44,7 +44,7 @@ KNOWN = {
     "calibrate": {"model", "detect_fps", "max_views", "floor", "board"},
     "track": {"backend", "sam2_checkpoint", "sam2_config", "chunk", "device", "prompts", "pictures", "people"},
     "keypoints": {"blank", "threads", "pictures"},
-    "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads"},
+    "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads", "hands"},
     "match": {"lam", "max_distance", "min_affinity", "plots"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model"},
     "report": {"video"},
@@ -171,7 +171,8 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         res = run_landmarks(ws, source=opts.get("source", "net"), weights=opts.get("weights"), arch=opts.get("arch"),
                             batch=int(opts.get("batch", 8)), device=opts.get("device", "cpu"),
                             noise=str(opts.get("noise", "0")), outliers=float(opts.get("outliers", 0.0)),
-                            seed=int(opts.get("seed", 0)), force=force, unit_frames=opts.get("unit_frames"))
+                            seed=int(opts.get("seed", 0)), force=force, unit_frames=opts.get("unit_frames"),
+                            hands=opts.get("hands", "auto"))
     elif stage == "match":
         from mamma_kit.matching.stage import run_match
 

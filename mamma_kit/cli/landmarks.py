@@ -30,6 +30,9 @@ def landmarks_cmd(
     noise: str = typer.Option("0", "--noise", help="--source gt: noise in px, or '1.2%' of the box height."),
     outliers: float = typer.Option(0.0, "--outliers", help="--source gt: fraction of landmarks made outliers."),
     seed: int = typer.Option(0, "--seed", help="--source gt: random seed."),
+    hands: str = typer.Option("auto", "--hands", help="Hand refinement (a second network reads each hand at the "
+                                                       "frame's resolution): auto (the shipped one where it fits "
+                                                       "the model), off, or a hand weights .pt."),
     describe: bool = typer.Option(False, "--describe", help="Print the architecture's state-dict names and shapes."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
     unit_frames: Optional[int] = typer.Option(None, "--unit-frames", min=0, help="Frames per unit of work "
@@ -74,6 +77,6 @@ def landmarks_cmd(
         raise UserError("no WORKSPACE given", "run `mamma-kit landmarks WORKSPACE` (or --describe to list the weights)")
     res = run_landmarks(Workspace(workspace), source=source, batch=batch, device=device, cameras=cameras, noise=noise,
                         outliers=outliers, seed=seed, force=force, loaded=loaded,
-                        unit_frames=unit_frames)
+                        unit_frames=unit_frames, hands=hands)
     if json_out:
         emit_json(res)

@@ -48,7 +48,7 @@ def landmark_pairs(ws: Workspace, cam: str) -> tuple[dict, str] | None:
     keep = gt.valid[gti, gpi]
     ti, ki, gti, gpi = ti[keep], ki[keep], gti[keep], gpi[keep]
     heights = gt_box_heights(gt, gt_masks)[gti, gpi]
-    d = {"xy_p": pred.xy[ti, ki], "xy_g": gt.xy[gti, gpi], "box_h": heights,
+    d = {"xy_p": pred.xy[ti, ki], "sigma_p": pred.sigma[ti, ki], "xy_g": gt.xy[gti, gpi], "box_h": heights,
          "vis_g": gt.visibility[gti, gpi], "vis_p": pred.visibility[ti, ki],
          "con_g": gt.contact[gti, gpi], "con_p": pred.contact[ti, ki],
          "flo_g": gt.floor_contact[gti, gpi], "flo_p": pred.floor_contact[ti, ki]}

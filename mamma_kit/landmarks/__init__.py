@@ -9,6 +9,8 @@ Public API (imported lazily, so ``import mamma_kit.landmarks`` does not load tor
   ``random_model(arch)``
 - inference: ``Predictor(loaded)`` with ``crop``, ``predict_crops``, ``to_image``, ``predict_image``;
   ``run_camera(predictor, cam, mask_tracks, video_path, batch)``
+- hand refinement: ``mamma_kit.landmarks.hands`` (``hand_refiner(landmark_set, "auto")``, ``HandRefiner``,
+  the hand crop contract); its training: ``mamma_kit.landmarks.hand_train``
 - crop contract: ``mamma_kit.landmarks.crop`` (expand_box, warp_crop, normalised_to_image, sigma_to_pixels, ...)
 - training: ``mamma_kit.landmarks.train.train(config_path, resume, device)``, ``CropShards(dirs)``,
   ``write_crop_shards``

@@ -181,16 +181,17 @@ class _Job:
     mask: np.ndarray | None
     box: np.ndarray
     extra: dict
+    hand: dict | None = None  # the frame, full masks and keypoints, for the hand refinement
 
 
 def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, np.ndarray]],
-               todo: np.ndarray, keypoints: KeypointTracks | None) -> Iterator[_Job]:
+               todo: np.ndarray, keypoints: KeypointTracks | None, hands: bool = False) -> Iterator[_Job]:
     boxes = C.tight_box_from_track_box(masks.boxes)
     guided = pred.needs_keypoints
     for t, img in frames:
         cols = np.flatnonzero(todo[t])
         # the other people's masks come from every track present in the frame, not only those cropped
-        all_cols = np.flatnonzero(masks.present[t]) if guided else cols
+        all_cols = np.flatnonzero(masks.present[t]) if guided or hands else cols
         mlist = {int(k): masks.mask(t, k) for k in all_cols}
         for k in cols:
             m = mlist[int(k)]
@@ -198,19 +199,24 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
             res = pred.crop(img, m, tb)
             if res is None:
                 continue
-            extra = {}
-            if guided:
+            extra, hand = {}, None
+            if guided or hands:
                 keys = list(mlist)
-                extra = pred.crop_inputs(img, res[2], track_points(keypoints, t, k) if keypoints else None,
-                                         others_mask([mlist[j] for j in keys], keys.index(int(k))))
-            yield _Job(int(t), int(k), res[0], res[1], res[2], extra)
+                others = others_mask([mlist[j] for j in keys], keys.index(int(k)))
+                points = track_points(keypoints, t, k) if keypoints else None
+                if guided:
+                    extra = pred.crop_inputs(img, res[2], points, others)
+                if hands:
+                    hand = {"image": img, "mask": m, "tight_box": tb, "keypoints": points, "others": others}
+            yield _Job(int(t), int(k), res[0], res[1], res[2], extra, hand)
 
 
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
                min_area: int = MIN_MASK_AREA, producer: dict | None = None,
-               keypoints: KeypointTracks | None = None, frame_range: tuple[int, int] | None = None
-               ) -> tuple[LandmarkTracks, dict]:
+               keypoints: KeypointTracks | None = None, frame_range: tuple[int, int] | None = None,
+               hands=None) -> tuple[LandmarkTracks, dict]:
     """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video.
+    ``hands``: a hands.HandRefiner that re-reads each hand at the frame's resolution.
     ``keypoints``: the camera's keypoints/<cam>.npz (on the mask tracks' frames and tracks), which
     keypoint-guided models read. ``frame_range``: only the mask frames start:stop (a unit of a split
     camera; every crop is independent of the others, so the split changes nothing)."""
@@ -254,6 +260,10 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
                                  np.stack([j.mask for j in pending]) if pred.cfg.use_mask else None,
                                  *stack_extra([j.extra for j in pending] if pred.needs_keypoints else []))
         res = Predictor.to_image(net, np.stack([j.box for j in pending]))
+        if hands is not None:
+            people = [{**j.hand, "xy": res["xy"][i], "sigma": res["sigma"][i], "visibility": res["visibility"][i]}
+                      for i, j in enumerate(pending)]
+            hands.refine(people)  # writes into res's rows
         ti = np.array([j.t for j in pending])
         ki = np.array([j.k for j in pending])
         out.valid[ti, ki] = True
@@ -264,7 +274,8 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
     done = 0
     with _progress() as bar:
         task = bar.add_task(f"landmarks {cam}" + (f" {frame_range[0]}-{frame_range[1]}" if frame_range else ""), total=total)
-        for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints), maxsize=2 * batch):
+        for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints, hands is not None),
+                            maxsize=2 * batch):
             pending.append(job)
             if len(pending) >= batch:
                 n = len(pending)

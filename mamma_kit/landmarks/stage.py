@@ -36,10 +36,12 @@ def _camera_names(ws, only, fallback_dir: Path | None = None) -> list[str]:
 def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None, arch: str | None = None,
                   batch: int = 8, device: str = "cpu", cameras: list[str] | str | None = None, noise: str = "0",
                   outliers: float = 0.0, seed: int = 0, force: bool = False, loaded=None,
-                  unit_frames: int | None = None) -> dict:
+                  unit_frames: int | None = None, hands: str | Path | None = "auto") -> dict:
     """Landmarks for every tracked person of every camera (see the module docstring).
     ``loaded``: an already loaded model (mamma_kit.landmarks.weights.load_model). ``unit_frames``:
-    frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES)."""
+    frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES). ``hands``: the hand
+    refinement (landmarks/hands.py): "auto" (the shipped HandNet where it fits the model), "off" or
+    a weights path."""
     if source not in ("net", "gt"):
         raise UserError(f"--source '{source}' is unknown", "use --source net or --source gt")
     if source == "net" and loaded is None:
@@ -47,6 +49,7 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
 
         loaded = load_model(weights, arch, device)
     t0 = time.perf_counter()
+    refiner = None
     if source == "gt":
         from mamma_kit.landmarks.gt import gt_landmarks_file, gt_masks_file
 
@@ -71,7 +74,16 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
                                 "image-only model)")
             for c in cams:
                 unit_inputs[c].append(ws.keypoints_file(c))
-        settings = {"source": "net", "arch": loaded.config.name, "weights": loaded.source}
+        from mamma_kit.landmarks.hands import hand_refiner
+
+        refiner = hand_refiner(loaded.landmark_set, hands)
+        settings = {"source": "net", "arch": loaded.config.name, "weights": loaded.source,
+                    "hands": refiner.loaded.source if refiner else "off"}
+        if refiner:  # the hand network reads the keypoints too, where there are any
+            for c in cams:
+                unit_inputs[c].append(Path(refiner.loaded.source))
+                if not loaded.config.keypoints_in and ws.keypoints_file(c).is_file():
+                    unit_inputs[c].append(ws.keypoints_file(c))
     per_cam, todo = {}, []
     for cam in cams:
         manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
@@ -90,7 +102,8 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
              ([None] if source == "gt" else frame_ranges(track_frame_count(ws.mask_file(cam)),
                                                            unit_frames))]
     unit = partial(_landmarks_range, root=ws.root, source=source, settings=settings, unit_inputs=unit_inputs,
-                   noise=noise, outliers=outliers, seed=seed, loaded=loaded, device=device, batch=batch)
+                   noise=noise, outliers=outliers, seed=seed, loaded=loaded, device=device, batch=batch,
+                   refiner=refiner)
     parts: dict[str, list] = {cam: [] for cam in todo}
     for (cam, frames), (summ, lt) in zip(units, run_units(unit, units, threaded=True)):
         parts[cam].append((frames, lt, summ))
@@ -124,7 +137,8 @@ _PREDICTORS: dict = {}
 
 
 def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, source: str, settings: dict,
-                     unit_inputs: dict, noise: str, outliers: float, seed: int, loaded, device: str, batch: int):
+                     unit_inputs: dict, noise: str, outliers: float, seed: int, loaded, device: str, batch: int,
+                     refiner=None):
     """One (camera, frame range), here or in a worker: (summary, None) for a whole camera, whose
     landmarks/<cam>.npz and manifest it writes itself; else (summary, landmarks with rows
     start:stop filled) for run_landmarks to join."""
@@ -148,10 +162,11 @@ def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, sourc
     pred = _PREDICTORS[key][1]
     cap = ws.load_capture()
     masks = MaskTracks.load(ws.mask_file(cam))
-    kt = KeypointTracks.load(ws.keypoints_file(cam)) if loaded.config.keypoints_in else None
+    use_kp = loaded.config.keypoints_in or (refiner is not None and ws.keypoints_file(cam).is_file())
+    kt = KeypointTracks.load(ws.keypoints_file(cam)) if use_kp else None
     whole = frames == (0, len(masks.frame_times))
     lt, summ = run_camera(pred, cam, masks, cap.cameras[cam].video, batch, keypoints=kt,
-                          frame_range=None if whole else frames)
+                          frame_range=None if whole else frames, hands=refiner)
     if whole:
         return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
     return summ, lt
