@@ -18,7 +18,7 @@ the 33, the face's ten points would weigh the nose ten times) that BlazePose see
 (visibility >= 0.5) and that both the fit and the triangulation give. BlazePose in c is itself a
 few % off the truth, so both figures include its error; only their difference is the method's.
 
-    nice -n 10 python benchmarks/heldout_view.py [--root /work/bench/heldout] [--threads 2]
+    nice -n 10 python benchmarks/heldout_view.py [--root /work/bench/heldout] [--threads 2] [--hands off]
 """
 
 from __future__ import annotations
@@ -50,12 +50,12 @@ def cli(*args) -> None:
             raise RuntimeError(f"mamma-kit {' '.join(map(str, args))} exited with {e.code}") from None
 
 
-def prepare(root: Path, threads: int):
+def prepare(root: Path, threads: int, hands: str = "auto"):
     """The real workspace through keypoints, landmarks and the match of all cameras (synced clocks)."""
     ws = real_workspace(root, stages=True)
     if not ws.timing.is_file():
         cli("sync", ws.root, "--method", "synced", "-q")
-    cli("landmarks", ws.root, "--threads", threads, "-q")
+    cli("landmarks", ws.root, "--threads", threads, "--hands", hands, "-q")
     cli("match", ws.root, "-q")
     return ws
 
@@ -171,6 +171,7 @@ def main() -> None:
     ap.add_argument("--cameras", default=None, help="held-out cameras (default: each in turn)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--reuse", action="store_true", help="evaluate held-out fits already in ROOT/heldout/<cam>")
+    ap.add_argument("--hands", default="auto", help="the landmarks' hand refinement: auto (default) or off")
     a = ap.parse_args()
     from mamma_kit.body.kp_regressor import keypoint_regressor
     from mamma_kit.body.model import load_body_model
@@ -179,7 +180,7 @@ def main() -> None:
     print(f"command: {' '.join(sys.argv)}")
     print(f"load average before: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     t0 = time.perf_counter()
-    ws = prepare(a.root, a.threads)
+    ws = prepare(a.root, a.threads, a.hands)
     log.set_quiet(True)
     model = load_body_model(ws.load_capture().body_model)
     reg = keypoint_regressor(model)

@@ -1,5 +1,6 @@
 """MammaNet quality on held-out synthetic captures: the keypoint-guided model (embedded-kp, the
-default) vs the image-only embedded model and the single-query baseline, in the same run.
+default), with and without its hand refinement (landmarks/hands.py), vs the image-only embedded
+model and the single-query baseline, in the same run.
 
     nice -n 10 python benchmarks/landmarks_quality.py [--root /tmp/mk_lm_bench] [--threads 2]
         [--weights mamma_kit/landmarks/weights/embedded-kp.pt] [--image-only .../embedded.pt]
@@ -73,9 +74,9 @@ def prepare(root: Path, name: str) -> Path:
     return ws
 
 
-def evaluate(ws: Path, weights: Path, threads: int) -> dict:
+def evaluate(ws: Path, weights: Path, threads: int, hands: str = "off") -> dict:
     t0 = time.perf_counter()
-    mk("landmarks", ws, "--weights", weights, "--threads", threads, "--force", "-q")
+    mk("landmarks", ws, "--weights", weights, "--threads", threads, "--hands", hands, "--force", "-q")
     secs = time.perf_counter() - t0
     out = json.loads(mk("eval", ws, "--only", "landmarks", "--json", capture=True))["landmarks"]
     out["seconds"] = secs
@@ -126,8 +127,10 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args()
-    models = {"embedded-kp": a.weights, "embedded": a.image_only, "single-query": a.baseline}
-    for k, p in list(models.items()):
+    # name: (weights, hand refinement); only the first refines hands (landmarks/hands.py)
+    models = {"embedded-kp+hands": (a.weights, "auto"), "embedded-kp": (a.weights, "off"),
+              "embedded": (a.image_only, "off"), "single-query": (a.baseline, "off")}
+    for k, (p, _) in list(models.items()):
         if not p.is_file():
             print(f"{k}: {p} not found, skipped")
             models.pop(k)
@@ -136,15 +139,17 @@ def main() -> None:
     results: dict = {}
     for name in a.captures.split(","):
         ws = prepare(a.root, name)
-        for mname, w in models.items():
-            m = evaluate(ws, w, a.threads)
+        for mname, (w, hands) in models.items():
+            m = evaluate(ws, w, a.threads, hands)
             results.setdefault(name, {})[mname] = m
             ids = identities(ws)
             m["identity_accuracy"] = ids.get("accuracy")
-            print(f"{name:7s} {mname:13s} {fmt(m)}; match identity {100 * ids.get('accuracy', float('nan')):.1f}% "
+            print(f"{name:7s} {mname:17s} {fmt(m)}; match identity {100 * ids.get('accuracy', float('nan')):.1f}% "
                   f"({ids.get('persons')} persons)  [{m['instances']} person-frames, {m['seconds']:.0f} s]", flush=True)
     if a.crops is not None:
-        for mname, w in models.items():
+        for mname, (w, hands) in models.items():
+            if hands != "off":  # crops are at the network's input size: nothing to refine from
+                continue
             m = crops_metrics(w, a.crops, a.crop_samples, a.threads)
             results.setdefault("crops", {})[mname] = m
             print(f"crops   {mname:13s} {fmt(m)}  [{m['instances']} held-out crops at the network's input size]",

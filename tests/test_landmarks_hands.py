@@ -103,3 +103,15 @@ def test_shipped_hand_net_finds_hands_from_a_rough_start(tmp_path):
     m = evaluate(ref, (str(tmp_path / "crops"),))
     assert m["hands"] >= 30
     assert m["visible_error_pct"] < 0.75 * m["start_visible_error_pct"]
+
+
+def test_hand_training_config_names_unknown_keys(tmp_path):
+    from mamma_kit.landmarks.hand_train import HandTrainConfig
+
+    cfg = tmp_path / "h.toml"
+    cfg.write_text('[data]\ntrain = ["a"]\nval = ["b"]\n[train]\nsteps = 10\nstpes = 3\n')
+    with pytest.raises(UserError, match="stpes"):
+        HandTrainConfig.load(cfg)
+    cfg.write_text('[data]\ntrain = ["a"]\nval = ["b"]\n[train]\nsteps = 10\nfrac = [0.2, 0.5]\n')
+    c = HandTrainConfig.load(cfg)
+    assert c.steps == 10 and c.frac == (0.2, 0.5) and c.train == ("a",)

@@ -18,13 +18,14 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from mamma_kit.core import log
+from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_toml
 from mamma_kit.landmarks import crop as C
 from mamma_kit.landmarks import hands as H
@@ -58,6 +59,12 @@ class HandTrainConfig:
         d = read_toml(path)
         t = dict(d.get("train", {}))
         t = {k: tuple(v) if isinstance(v, list) else v for k, v in t.items()}
+        known = {f.name for f in fields(cls)} - {"train", "val"}
+        if set(t) - known:
+            raise UserError(f"{path}: unknown [train] keys {', '.join(sorted(set(t) - known))}",
+                            f"valid keys: {', '.join(sorted(known))}")
+        if not d.get("data", {}).get("train") or not d["data"].get("val"):
+            raise UserError(f"{path} has no [data] train and val shard folders", "see configs/hands-kp.toml")
         return cls(train=tuple(d["data"]["train"]), val=tuple(d["data"]["val"]), **t)
 
 
