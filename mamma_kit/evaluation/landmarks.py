@@ -52,6 +52,7 @@ def landmark_pairs(ws: Workspace, cam: str) -> tuple[dict, str] | None:
          "vis_g": gt.visibility[gti, gpi], "vis_p": pred.visibility[ti, ki],
          "con_g": gt.contact[gti, gpi], "con_p": pred.contact[ti, ki],
          "flo_g": gt.floor_contact[gti, gpi], "flo_p": pred.floor_contact[ti, ki]}
+    d["index_p"], d["index_g"] = (ti, ki), (gti, gpi)  # (frame, column) of each pair in pred and gt
     d["gt_instances"] = int(gt.valid.sum())
     return d, how
 
@@ -77,7 +78,7 @@ def evaluate(ws: Workspace) -> dict | None:
                         "error_pct_box_visible": m["error_pct_box_visible"]}
     if not parts:
         return {"cameras": per_cam}
-    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "gt_instances"}
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k not in ("gt_instances", "index_p", "index_g")}
     out = landmark_metrics(cat["xy_p"], cat["xy_g"], cat["box_h"], cat["vis_g"], cat["vis_p"], cat["con_g"],
                            cat["con_p"], cat["flo_g"], cat["flo_p"])
     out["coverage"] = out["instances"] / max(1, sum(p["gt_instances"] for p in parts))
