@@ -193,8 +193,9 @@ class HandRefiner:
     def refine(self, people: list[dict], side: int | None = None) -> None:
         """Refine in place each person's hand landmarks (or only ``side``'s: 0 left, 1 right), all in one
         batch per cascade step. A person is a dict with ``image`` (H, W, 3) its frame, ``xy`` and
-        ``sigma`` (L, 2) image px from the body network, ``tight_box`` (4,) its mask's, ``mask`` /
-        ``others`` (H, W) bool or None, ``keypoints`` (33, 5) image px or None."""
+        ``sigma`` (L, 2) image px and, optionally, ``visibility`` (L,) from the body network,
+        ``tight_box`` (4,) its mask's, ``mask`` / ``others`` (H, W) bool or None, ``keypoints``
+        (33, 5) image px or None."""
         sides = (0, 1) if side is None else (side,)
         jobs = [(p, s) for p in people for s in sides if np.isfinite(p["xy"][self.ids[s]]).all()]
         if not jobs:
