@@ -194,3 +194,15 @@ def test_bad_recipe_field_is_a_user_error(tmp_path):
     p.write_text('name = "x"\n[people]\ncount = 1\n[motion]\nkind = "hug"\n')
     with pytest.raises(UserError, match="people.count = 2"):
         load_recipe(p)
+
+
+def test_camera_noise_stream_is_the_same_in_every_process():
+    """The sensor noise must not depend on Python's per-process string hashing (PYTHONHASHSEED)."""
+    import os
+    import subprocess
+    import sys
+
+    code = "from mamma_kit.synth.scene import camera_rng; print(camera_rng(7, 'cam2').random(3).tolist())"
+    outs = {subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONHASHSEED": h}, check=True,
+                           capture_output=True, text=True).stdout for h in ("1", "2")}
+    assert len(outs) == 1

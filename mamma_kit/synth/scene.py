@@ -3,6 +3,8 @@ per-frame ground truth (masks, 2D landmarks, visibility, contact labels)."""
 
 from __future__ import annotations
 
+import zlib
+
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +30,13 @@ FLOOR_DIST = 0.015  # m above the floor, with a downward-facing normal: floor co
 def sample_betas(rng: np.random.Generator, n: int, spread: float = 0.9) -> np.ndarray:
     return np.clip(rng.normal(0, spread, (n, 16)), -2.5, 2.5) * np.r_[np.ones(6), np.full(10, 0.5)]
 
+
+
+def camera_rng(seed: int, camera: str) -> np.random.Generator:
+    """The random stream of one camera's rendering (its sensor noise), the same in every process:
+    zlib.crc32 of the name, not hash(), which Python salts per process (PYTHONHASHSEED) and which made
+    one recipe and seed render other noise, and so other figures, on every run."""
+    return np.random.default_rng([seed, zlib.crc32(camera.encode())])
 
 @dataclass
 class Scene:
@@ -58,7 +67,7 @@ class Scene:
     # ---- per-camera rendering ------------------------------------------------------------
     def render_camera(self, sc: SynthCamera, path: Path, audio, recipe: Recipe, gt: Path) -> None:
         cam = sc.camera
-        rng = np.random.default_rng(recipe.seed * 1000 + hash(cam.name) % 997)
+        rng = camera_rng(recipe.seed, cam.name)
         renderer = CameraRenderer(cam, self.env)
         s_all = sc.scene_times
         T, P = len(s_all), self.n_people
