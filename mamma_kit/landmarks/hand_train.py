@@ -9,7 +9,7 @@ keypoint drops), then a hand crop cut from it through the inference contract (ha
 with a random side (``frac``) and a centre off the true hand centre by about what the body network
 misses it by. Samples are made once up front by a process pool (``samples`` of them, each crop seen
 several times with different augmentation) and held in memory as uint8, so training steps cost only
-the network. The config's [eval] crops are held out: the error reported is the mean visible-landmark
+the network. The config's [data] val crops are held out: the error reported is the mean visible-landmark
 error in % of the box height, after the same cascade inference runs.
 """
 
@@ -31,6 +31,7 @@ from mamma_kit.landmarks import crop as C
 from mamma_kit.landmarks import hands as H
 from mamma_kit.landmarks.augment import AugmentConfig, prepare_sample
 from mamma_kit.landmarks.data import CropShards
+from mamma_kit.landmarks.losses import bce, gaussian_nll
 
 
 @dataclass(frozen=True)
@@ -69,23 +70,19 @@ class HandTrainConfig:
 
 
 def hand_sample(sample: dict, ids: tuple[np.ndarray, np.ndarray], cfg: HandTrainConfig, aug: AugmentConfig | None,
-                rng: np.random.Generator, side: int | None = None, centre_2: np.ndarray | None = None,
-                frac: float | None = None) -> dict:
-    """One training (or evaluation) hand crop from one shard sample: x (10, 64, 64) uint8, side,
-    xy_n (60, 2) float32 in the hand crop, visibility (60,), box_h (the tight box height in hand
-    crop px). ``centre_2`` (body crop px) and ``frac`` fix the crop (evaluation); else random."""
+                rng: np.random.Generator) -> dict:
+    """One training hand crop from one shard sample, of a random side, size and centre: x (10, 64, 64)
+    uint8, side, xy_n (60, 2) float32 in the hand crop, visibility and contact (60,)."""
     h, w = sample["images"].shape[:2]
     body = prepare_sample(sample, (w, h), "scale", aug, rng)
     uv = C.normalised_to_crop(body["xy_n"], (w, h))
-    side = int(rng.integers(2)) if side is None else side
+    side = int(rng.integers(2))
     hid = ids[side]
     size = float(np.ptp(uv, axis=0).max())  # the landmarks' extent: at inference, the mask box's
-    if frac is None:
-        frac = math.exp(rng.uniform(*np.log(cfg.frac)))
-    if centre_2 is None:
-        s = frac * size
-        off = rng.uniform(-0.35, 0.35, 2) * s if rng.random() < cfg.p_far else rng.normal(0, cfg.centre_jitter * s, 2)
-        centre_2 = uv[hid].mean(0) + off
+    frac = math.exp(rng.uniform(*np.log(cfg.frac)))
+    s = frac * size
+    off = rng.uniform(-0.35, 0.35, 2) * s if rng.random() < cfg.p_far else rng.normal(0, cfg.centre_jitter * s, 2)
+    centre_2 = uv[hid].mean(0) + off
     mask, others = body["mask"], body["others"]
     if aug is not None and others.any() and rng.random() < cfg.p_bleed + cfg.p_swap:
         yy, xx = np.mgrid[:h, :w]
@@ -105,10 +102,8 @@ def hand_sample(sample: dict, ids: tuple[np.ndarray, np.ndarray], cfg: HandTrain
     box = H.hand_box(centre_2, size, frac)
     x, M = H.hand_inputs(body["image"], mask, others, kp, side, box)
     xy_h = C.crop_to_normalised(C.apply_affine(M, uv[hid]), (H.HAND_IN, H.HAND_IN))
-    scale = H.HAND_IN / box[2]
     return {"x": np.clip(x, 0, 255).astype(np.uint8), "side": np.int64(side), "xy_n": xy_h.astype(np.float32),
-            "visibility": body["visibility"][hid].astype(np.float32), "contact": body["contact"][hid].astype(np.float32),
-            "box_h": np.float32(body["box_h"] * scale)}
+            "visibility": body["visibility"][hid].astype(np.float32), "contact": body["contact"][hid].astype(np.float32)}
 
 
 _POOL: dict = {}
@@ -120,15 +115,15 @@ def _init_worker(dirs: tuple[str, ...], cfg: HandTrainConfig) -> None:
     _POOL.update(shards=shards, cfg=cfg, ids=H.hand_landmark_ids(shards.landmark_parts, shards.part_names))
 
 
-def _make_chunk(args: tuple[int, int, int, int]) -> dict:
+def _make_chunk(args: tuple[int, int, int]) -> dict:
     """``n`` samples of shard ``j`` (one shard per chunk: shards are too big to hop between)."""
-    j, n, seed, chunk = args
+    j, n, seed = args
     shards, cfg, ids = _POOL["shards"], _POOL["cfg"], _POOL["ids"]
     aug = AugmentConfig()
     start, count = int(shards.starts[j]), int(shards.counts[j])
     out = []
     for i in range(n):
-        rng = np.random.default_rng([seed, j, chunk, i])
+        rng = np.random.default_rng([seed, j, 0, i])  # 0: the streams the shipped run drew
         out.append(hand_sample(shards[start + int(rng.integers(count))], ids, cfg, aug, rng))
     return {k: np.stack([o[k] for o in out]) for k in out[0]}
 
@@ -142,7 +137,7 @@ def make_samples(cfg: HandTrainConfig) -> dict[str, np.ndarray]:
     annotate_keypoints(list(cfg.train))
     counts = CropShards(list(cfg.train)).counts
     per = np.floor(counts / counts.sum() * cfg.samples).astype(int)
-    jobs = [(j, int(c), cfg.seed, 0) for j, c in enumerate(per) if c > 0]
+    jobs = [(j, int(c), cfg.seed) for j, c in enumerate(per) if c > 0]
     parts = []
     with ProcessPoolExecutor(cfg.threads, initializer=_init_worker, initargs=(cfg.train, cfg)) as ex, \
             log.progress("hand samples", len(jobs)) as advance:
@@ -157,13 +152,11 @@ def hand_loss(out: dict, xy_n: torch.Tensor, vis: torch.Tensor, invisible_weight
     """Gaussian NLL of the positions (visible landmarks weigh 1, hidden ``invisible_weight``, those
     outside the crop 0.3 of that), visibility BCE and, with ``contact``, contact BCE (positives x 4:
     they are rare)."""
-    d2 = (out["xy"] - xy_n).pow(2).sum(-1)
-    ls = out["log_sigma"]
-    nll = torch.clamp(d2 / (2.0 * torch.exp(2.0 * ls)), max=25.0) + 2.0 * ls
+    nll = gaussian_nll(out["xy"], out["log_sigma"], xy_n)
     inside = (xy_n.abs() <= 1.2).all(-1).float()
     w = (vis + invisible_weight * (1 - vis)) * (0.3 + 0.7 * inside)
     l_xy = (nll * w).sum() / w.sum()
-    l_vis = torch.nn.functional.binary_cross_entropy_with_logits(out["vis_logit"], vis)
+    l_vis = bce(out["vis_logit"], vis).mean()
     parts = {"nll": l_xy.item(), "vis": l_vis.item()}
     loss = l_xy + l_vis
     if contact is not None:

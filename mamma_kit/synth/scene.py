@@ -4,7 +4,6 @@ per-frame ground truth (masks, 2D landmarks, visibility, contact labels)."""
 from __future__ import annotations
 
 import zlib
-
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,12 +30,12 @@ def sample_betas(rng: np.random.Generator, n: int, spread: float = 0.9) -> np.nd
     return np.clip(rng.normal(0, spread, (n, 16)), -2.5, 2.5) * np.r_[np.ones(6), np.full(10, 0.5)]
 
 
-
 def camera_rng(seed: int, camera: str) -> np.random.Generator:
     """The random stream of one camera's rendering (its sensor noise), the same in every process:
     zlib.crc32 of the name, not hash(), which Python salts per process (PYTHONHASHSEED) and which made
     one recipe and seed render other noise, and so other figures, on every run."""
     return np.random.default_rng([seed, zlib.crc32(camera.encode())])
+
 
 @dataclass
 class Scene:
