@@ -18,6 +18,7 @@ Stage options come from capture.toml, e.g.::
     [settings.calibrate]   model = "radtan"   detect_fps = 10   max_views = 40   floor = true
     [settings.sync]        method = "auto"    (and every sync setting; see sync/*.toml)
     [settings.track]       backend = "builtin"   (sam2: sam2_checkpoint, sam2_config, chunk, device)
+    [settings.keypoints]   resplit = false   (touching people read again on masks re-split by their points)
     [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8  hands = "off"   (source = "gt" on synthetic data)
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
@@ -43,7 +44,7 @@ from mamma_kit.core.workspace import STAGES, Workspace
 KNOWN = {
     "calibrate": {"model", "detect_fps", "max_views", "floor", "board"},
     "track": {"backend", "sam2_checkpoint", "sam2_config", "chunk", "device", "prompts", "pictures", "people"},
-    "keypoints": {"blank", "threads", "pictures"},
+    "keypoints": {"blank", "threads", "pictures", "resplit"},
     "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads", "hands"},
     "match": {"lam", "max_distance", "min_affinity", "plots"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model"},
@@ -160,7 +161,8 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         from mamma_kit.keypoints.stage import run_keypoints
 
         res = run_keypoints(ws, blank=bool(opts.get("blank", True)), pictures=bool(opts.get("pictures", True)),
-                            force=force, threads=opts.get("threads"), unit_frames=opts.get("unit_frames"))
+                            force=force, threads=opts.get("threads"), unit_frames=opts.get("unit_frames"),
+                            resplit=bool(opts.get("resplit", True)))
     elif stage == "landmarks":
         from mamma_kit.landmarks.stage import run_landmarks
 

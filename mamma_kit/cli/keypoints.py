@@ -17,6 +17,8 @@ def keypoints_cmd(
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated subset of cameras."),
     blank: bool = typer.Option(True, "--blank/--no-blank", help="Show the model each person alone (the rest of "
                                                                 "its input blanked by the track's mask)."),
+    resplit: bool = typer.Option(True, "--resplit/--no-resplit", help="Where two people's masks touch, re-split "
+                                 "them by the points found and read those people again on their new masks."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="LiteRT threads (default: up to 2)."),
     pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="Write report/keypoints/<cam>.png."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
@@ -35,6 +37,6 @@ def keypoints_cmd(
 
     setup(quiet, json_out)
     res = run_keypoints(Workspace(workspace), cameras=cameras, blank=blank, pictures=pictures, force=force,
-                        threads=threads, unit_frames=unit_frames)
+                        threads=threads, unit_frames=unit_frames, resplit=resplit)
     if json_out:
         emit_json(res)

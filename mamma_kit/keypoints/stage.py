@@ -37,12 +37,19 @@ def _follow_ok(roi_4: np.ndarray, box_4: np.ndarray) -> bool:
     return bool(inside and lo * max(w, h) <= roi_4[2] <= hi * max(w, h))
 
 
+def points_p5(res, j: int) -> np.ndarray:
+    """(33, 5) x, y, z, visibility, presence of ROI j of a PoseResult (the layout resplit reads)."""
+    return np.concatenate([res.xy[j], res.z[j, :, None], res.visibility[j, :, None], res.presence[j, :, None]], 1)
+
+
 def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
-                         progress_label: str | None = None, frames: tuple[int, int] | None = None
-                         ) -> tuple[KeypointTracks, dict]:
+                         progress_label: str | None = None, frames: tuple[int, int] | None = None,
+                         resplit: bool = True) -> tuple[KeypointTracks, dict]:
     """33 points for every (frame, track) of one camera's mask tracks, streaming the video once.
     ``frames``: only the mask frames start:stop (a unit of a split camera; the ROIs are found
-    afresh by the detector at its first frame)."""
+    afresh by the detector at its first frame). ``resplit`` (with ``blank``): where two people's
+    masks touch, they are re-split by the points found (keypoints/resplit.py) and the people whose
+    mask changed are read again on their new mask."""
     from mamma_kit.video import VideoReader
 
     reader = VideoReader(video_path)
@@ -60,7 +67,7 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
     by_video = {int(v): int(t) for t, v in enumerate(vid_idx) if v >= 0 and present[t].any()}
     follow: dict[int, np.ndarray] = {}  # column -> ROI from the previous frame
     last_t: dict[int, int] = {}
-    n_det = n_follow = 0
+    n_det = n_follow = n_again = 0
     t0 = time.perf_counter()
     total = int(present[[t for t in by_video.values()]].sum()) if by_video else 0
     with log.progress(progress_label or f"keypoints {masks.camera}", total) as advance:
@@ -82,6 +89,8 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
                 rois[need] = est.rois_for_boxes(img, boxes[need], [mlist[j] for j in need] if blank else None)
                 n_det += len(need)
             res = est.landmarks(img, rois, masks=mlist if blank else None)
+            if resplit and blank and len(cols) > 1:
+                n_again += again_on_resplit(est, img, rois, mlist, res)
             ok = res.score >= MIN_FOLLOW_FLAG
             for j, k in enumerate(cols):
                 follow[int(k)] = res.next_rois[j]
@@ -97,15 +106,36 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
     secs = time.perf_counter() - t0
     n = int(present.sum())
     summary = {"camera": masks.camera, "instances": n, "with_pose": int(out.valid.sum()),
-               "detector_calls": n_det, "followed": n_follow, "seconds": round(secs, 3),
+               "detector_calls": n_det, "followed": n_follow, "read_again": n_again, "seconds": round(secs, 3),
                "person_frames_per_s": round(n / secs, 1) if secs > 0 else None}
     return out, summary
 
 
+def again_on_resplit(est, img: np.ndarray, rois_n4: np.ndarray, mlist: list, res) -> int:
+    """The frame's masks re-split by the points in ``res`` (one PoseResult row per mask); the people
+    whose mask changed are read again on it, their rows of ``res`` replaced in place. Returns how
+    many were read again."""
+    from mamma_kit.keypoints.resplit import split_touching
+
+    ok = res.score >= MIN_FOLLOW_FLAG
+    new = split_touching(dict(enumerate(mlist)), {j: points_p5(res, j) if ok[j] else None for j in range(len(mlist))})
+    again = [j for j in range(len(mlist)) if new[j] is not mlist[j] and new[j] is not None and new[j].any()]
+    if not again:
+        return 0
+    r2 = est.landmarks(img, rois_n4[again], masks=[new[j] for j in again])
+    for i, j in enumerate(again):
+        if r2.score[i] >= MIN_FOLLOW_FLAG:
+            for name in ("xy", "z", "visibility", "presence", "score", "next_rois"):
+                getattr(res, name)[j] = getattr(r2, name)[i]
+    return len(again)
+
+
 def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = True, pictures: bool = True,
-                  force: bool = False, threads: int | None = None, unit_frames: int | None = None) -> dict:
+                  force: bool = False, threads: int | None = None, unit_frames: int | None = None,
+                  resplit: bool = True) -> dict:
     """BlazePose keypoints for every tracked person of every camera (see the module docstring).
-    ``unit_frames``: frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES)."""
+    ``unit_frames``: frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES).
+    ``resplit``: touching people read again on masks re-split by their points (keypoints_for_tracks)."""
     from mamma_kit.core.workspace import select_cameras
     from mamma_kit.keypoints.runtime import DETECTOR, LANDMARKER, model_path
 
@@ -116,7 +146,7 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
         raise UserError(f"no person masks for {', '.join(missing)} (masks/<cam>.npz)",
                         "run `mamma-kit track WORKSPACE` first")
     models = [model_path(DETECTOR), model_path(LANDMARKER)]
-    settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures}
+    settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures, "resplit": bool(resplit)}
     t0 = time.perf_counter()
     per_cam, todo = {}, []
     for cam in cams:
@@ -175,18 +205,20 @@ def _keypoints_range(unit: tuple[str, tuple[int, int]], root: Path, models: list
         _ESTIMATORS[threads] = PoseEstimator(threads)
     masks = MaskTracks.load(ws.mask_file(cam))
     if frames == (0, len(masks.frame_times)):
-        kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank)
+        kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank,
+                                        resplit=settings["resplit"])
         return _write_camera(ws, cam, kt, summ, models, settings, pictures), None
     kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank,
-                                    progress_label=f"keypoints {cam} {frames[0]}-{frames[1]}", frames=frames)
+                                    progress_label=f"keypoints {cam} {frames[0]}-{frames[1]}", frames=frames,
+                                    resplit=settings["resplit"])
     return summ, kt
 
 
 def _joined_summary(cam: str, summaries: list[dict]) -> dict:
     if len(summaries) == 1:
         return summaries[0]
-    out = {"camera": cam, **{k: sum(s[k] for s in summaries) for k in ("instances", "with_pose", "detector_calls",
-                                                                        "followed")}}
+    out = {"camera": cam, **{k: sum(s.get(k, 0) for s in summaries)
+                             for k in ("instances", "with_pose", "detector_calls", "followed", "read_again")}}
     secs = sum(s["seconds"] for s in summaries)
     out.update({"seconds": round(secs, 3), "units": len(summaries),
                 "person_frames_per_s": round(out["instances"] / secs, 1) if secs > 0 else None})
