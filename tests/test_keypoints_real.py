@@ -179,3 +179,64 @@ def test_motion_sync_with_people_standing_still_is_one_clear_line(real_ws):
         kt.visibility[:] = kt.visibility[:1]
     with pytest.raises(UserError, match="too little shared motion"):
         motion_clocks(kts, rig, "cam01")
+
+
+def sloppy_masks(mt: MaskTracks, reach_frac: float = 0.08) -> MaskTracks:
+    """The pose tracks as a careless tracker would cut them where the people meet: each frame, the
+    second person's pixels within ``reach_frac`` of the first person's height of the first person
+    are given to the first (a forearm on the wrong side of the cut)."""
+    import cv2
+
+    out = {}
+    for t in range(len(mt.frame_times)):
+        a, b = mt.mask(t, 0), mt.mask(t, 1)
+        if a is None or b is None:
+            out.update({(t, k): m for k, m in ((0, a), (1, b)) if m is not None})
+            continue
+        r = max(1, int(reach_frac * (mt.boxes[t, 0, 3] - mt.boxes[t, 0, 1])))
+        near = cv2.dilate(a.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+        out[(t, 0)], out[(t, 1)] = a | (b & near), b & ~near
+    return MaskTracks.from_masks(mt.camera, mt.image_size, mt.frame_times, mt.track_ids, out,
+                                 producer={"command": "track --backend builtin"})
+
+
+def limb_points_inside(kt: KeypointTracks, truth: MaskTracks) -> float:
+    """Share of the visible limb points that fall inside their person's (pose) mask, grown by 2 %."""
+    import cv2
+
+    inside = []
+    for t, k in zip(*np.nonzero(kt.valid)):
+        m = truth.mask(t, k)
+        if m is None:
+            continue
+        r = max(1, int(0.02 * (truth.boxes[t, k, 3] - truth.boxes[t, k, 1])))
+        m = cv2.dilate(m.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+        ij = np.round(kt.xy[t, k, LIMBS][kt.visibility[t, k, LIMBS] > 0.5]).astype(int)
+        ij = np.clip(ij, 0, [m.shape[1] - 1, m.shape[0] - 1])
+        inside += list(m[ij[:, 1], ij[:, 0]])
+    return float(np.mean(inside))
+
+
+def test_touching_masks_are_resplit_by_the_points_and_read_again(real_ws):
+    """Where a tracker cut the touching people badly, the keypoints stage re-splits their masks by
+    the points it found and reads them again, and masks of the pose tracker (split by skeletons
+    already) are left alone. On these real frames the re-read keeps the points on their own person
+    about as well as the plain read (frames 40-59: cam02 0.933 -> 0.947, cam03 0.965 -> 0.948,
+    cam04 0.963 -> 0.949 inside): it is a gain on the synthetic duo (demo MPJPE 48.7 -> 43.5 mm),
+    not on this proxy, so the test holds it to "no worse than 3 points"."""
+    from mamma_kit.keypoints.estimator import PoseEstimator
+    from mamma_kit.keypoints.stage import keypoints_for_tracks, run_keypoints
+
+    c = "cam03"  # one person passing behind the other
+    truth = MaskTracks.load(real_ws.mask_file(c))
+    sloppy = sloppy_masks(truth)
+    video = real_ws.load_capture().cameras[c].video
+    est = PoseEstimator()
+    plain, s0 = keypoints_for_tracks(est, sloppy, video, resplit=False)
+    again, s1 = keypoints_for_tracks(est, sloppy, video, resplit=True)
+    assert s0["read_again"] == 0 and s1["resplit"] and s1["read_again"] > 0
+    assert again.valid.sum() >= plain.valid.sum() - 1
+    assert limb_points_inside(again, truth) >= limb_points_inside(plain, truth) - 0.03
+    # the pose tracker's own masks: no re-split (its summary says so), nothing read again
+    summ = run_keypoints(real_ws, cameras=[c], pictures=False, force=True)["cameras"][0]
+    assert summ["resplit"] is False and summ["read_again"] == 0
