@@ -18,7 +18,7 @@ Stage options come from capture.toml, e.g.::
     [settings.calibrate]   model = "radtan"   detect_fps = 10   max_views = 40   floor = true
     [settings.sync]        method = "auto"    (and every sync setting; see sync/*.toml)
     [settings.track]       backend = "builtin"   (sam2: sam2_checkpoint, sam2_config, chunk, device)
-    [settings.keypoints]   resplit = false   (touching people read again on masks re-split by their points)
+    [settings.keypoints]   resplit = false | 3   (rounds of touching people read again on masks re-split by their points)
     [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8  hands = "off"   (source = "gt" on synthetic data)
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
@@ -162,7 +162,7 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
 
         res = run_keypoints(ws, blank=bool(opts.get("blank", True)), pictures=bool(opts.get("pictures", True)),
                             force=force, threads=opts.get("threads"), unit_frames=opts.get("unit_frames"),
-                            resplit=bool(opts.get("resplit", True)))
+                            resplit=opts.get("resplit", True))
     elif stage == "landmarks":
         from mamma_kit.landmarks.stage import run_landmarks
 

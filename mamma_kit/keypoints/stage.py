@@ -53,10 +53,11 @@ def points_p5(res, j: int) -> np.ndarray:
 
 def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
                          progress_label: str | None = None, frames: tuple[int, int] | None = None,
-                         resplit: bool = True) -> tuple[KeypointTracks, dict]:
+                         resplit: bool | int = True) -> tuple[KeypointTracks, dict]:
     """33 points for every (frame, track) of one camera's mask tracks, streaming the video once.
     ``frames``: only the mask frames start:stop (a unit of a split camera; the ROIs are found
-    afresh by the detector at its first frame). ``resplit`` (with ``blank``): where two people's
+    afresh by the detector at its first frame). ``resplit`` (with ``blank``; rounds, True =
+    RESPLIT_ROUNDS): where two people's
     masks touch, they are re-split by the points found (keypoints/resplit.py) and the people whose
     mask changed are read again on their new mask."""
     from mamma_kit.video import VideoReader
@@ -77,6 +78,7 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
     follow: dict[int, np.ndarray] = {}  # column -> ROI from the previous frame
     last_t: dict[int, int] = {}
     n_det = n_follow = n_again = 0
+    rounds = resplit_rounds(resplit) if blank else 0
     t0 = time.perf_counter()
     total = int(present[[t for t in by_video.values()]].sum()) if by_video else 0
     with log.progress(progress_label or f"keypoints {masks.camera}", total) as advance:
@@ -98,8 +100,8 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
                 rois[need] = est.rois_for_boxes(img, boxes[need], [mlist[j] for j in need] if blank else None)
                 n_det += len(need)
             res = est.landmarks(img, rois, masks=mlist if blank else None)
-            if resplit and blank and len(cols) > 1:
-                n_again += again_on_resplit(est, img, rois, mlist, res, RESPLIT_ROUNDS)
+            if rounds and len(cols) > 1:
+                n_again += again_on_resplit(est, img, rois, mlist, res, rounds)
             ok = res.score >= MIN_FOLLOW_FLAG
             for j, k in enumerate(cols):
                 follow[int(k)] = res.next_rois[j]
@@ -115,10 +117,20 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
     secs = time.perf_counter() - t0
     n = int(present.sum())
     summary = {"camera": masks.camera, "instances": n, "with_pose": int(out.valid.sum()),
-               "detector_calls": n_det, "followed": n_follow, "resplit": bool(resplit and blank),
+               "detector_calls": n_det, "followed": n_follow, "resplit": rounds,
                "read_again": n_again, "seconds": round(secs, 3),
                "person_frames_per_s": round(n / secs, 1) if secs > 0 else None}
     return out, summary
+
+
+def resplit_rounds(resplit: bool | int) -> int:
+    """Rounds of re-split and re-read: True = RESPLIT_ROUNDS, False = 0, or the number given."""
+    if isinstance(resplit, bool):
+        return RESPLIT_ROUNDS if resplit else 0
+    if not isinstance(resplit, int) or resplit < 0:
+        raise UserError(f"resplit = {resplit!r} is not a number of rounds",
+                        "use true, false or a whole number (0 = off) in [settings.keypoints]")
+    return resplit
 
 
 def again_on_resplit(est, img: np.ndarray, rois_n4: np.ndarray, mlist: list, res, rounds: int = 2) -> int:
@@ -147,10 +159,11 @@ def again_on_resplit(est, img: np.ndarray, rois_n4: np.ndarray, mlist: list, res
 
 def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = True, pictures: bool = True,
                   force: bool = False, threads: int | None = None, unit_frames: int | None = None,
-                  resplit: bool = True) -> dict:
+                  resplit: bool | int = True) -> dict:
     """BlazePose keypoints for every tracked person of every camera (see the module docstring).
     ``unit_frames``: frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES).
-    ``resplit``: touching people read again on masks re-split by their points (keypoints_for_tracks)."""
+    ``resplit``: rounds of touching people read again on masks re-split by their points (True =
+    RESPLIT_ROUNDS; keypoints_for_tracks)."""
     from mamma_kit.core.workspace import select_cameras
     from mamma_kit.keypoints.runtime import DETECTOR, LANDMARKER, model_path
 
@@ -161,7 +174,7 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
         raise UserError(f"no person masks for {', '.join(missing)} (masks/<cam>.npz)",
                         "run `mamma-kit track WORKSPACE` first")
     models = [model_path(DETECTOR), model_path(LANDMARKER)]
-    settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures, "resplit": bool(resplit)}
+    settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures, "resplit": resplit_rounds(resplit)}
     t0 = time.perf_counter()
     per_cam, todo = {}, []
     for cam in cams:
@@ -219,7 +232,7 @@ def _keypoints_range(unit: tuple[str, tuple[int, int]], root: Path, models: list
 
         _ESTIMATORS[threads] = PoseEstimator(threads)
     masks = MaskTracks.load(ws.mask_file(cam))
-    resplit = settings["resplit"] and masks.producer.get("command") not in NO_RESPLIT
+    resplit = 0 if masks.producer.get("command") in NO_RESPLIT else settings["resplit"]
     if frames == (0, len(masks.frame_times)):
         kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank,
                                         resplit=resplit)
