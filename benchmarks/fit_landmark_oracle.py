@@ -16,10 +16,13 @@ that a shared offset hurts far more than the same size of independent noise.
 from __future__ import annotations
 
 import argparse
-import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from refit import fresh_copy, refit  # noqa: E402
 
 VARIANTS = {  # name: (parts, iid %, offset %)
     "network": ((), 0.0, 0.0),
@@ -62,11 +65,6 @@ def replace_landmarks(ws, parts: tuple[str, ...], iid: float, offset: float, see
 
 def main() -> None:
     from mamma_kit.core import log
-    from mamma_kit.core.smplxfile import read_smplx_result
-    from mamma_kit.core.workspace import Workspace
-    from mamma_kit.evaluation.fit import evaluate_results
-    from mamma_kit.fitting.stage import fit_workspace
-    from mamma_kit.fitting.stages import FitConfig
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("workspace", type=Path)
@@ -74,17 +72,10 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     a = ap.parse_args()
     log.set_quiet(True)
-    src = a.workspace
     for i, (name, (parts, iid, offset)) in enumerate(VARIANTS.items()):
-        dst = a.out / f"v{i}"
-        if dst.exists():
-            shutil.rmtree(dst)
-        shutil.copytree(src, dst, ignore=lambda d, n: [x for x in n if Path(d) == src and x in
-                                                       ("report", "smplx", ".cache")])
-        ws = Workspace(dst)
+        ws = fresh_copy(a.workspace, a.out / f"v{i}")
         replace_landmarks(ws, parts, iid, offset)
-        fit_workspace(ws, stages=3, config=FitConfig(), threads=a.threads, force=True)
-        m = evaluate_results(ws, [read_smplx_result(p) for p in ws.person_files()], penetration_frames=None)
+        m = refit(ws, a.threads)
         print(f"{name:26s} MPJPE {m['mpjpe_mm']:5.1f} mm (body {m['mpjpe_body_mm']:.1f}, hands "
               f"{m['mpjpe_hands_mm']:.1f}), PA {m['pa_mpjpe_mm']:.1f}", flush=True)
 

@@ -16,10 +16,13 @@ Issue 22 used it on the demo: 0 rounds 48.9 mm, one 45.4, two 43.7, three 43.5 (
 from __future__ import annotations
 
 import argparse
-import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from refit import fresh_copy, refit  # noqa: E402
 
 
 def touching_iou(ws, rounds: int) -> float:
@@ -54,12 +57,7 @@ def touching_iou(ws, rounds: int) -> float:
 
 def main() -> None:
     from mamma_kit.core import log
-    from mamma_kit.core.smplxfile import read_smplx_result
-    from mamma_kit.core.workspace import Workspace
-    from mamma_kit.evaluation.fit import evaluate_results
     from mamma_kit.evaluation.landmarks import evaluate as evaluate_landmarks
-    from mamma_kit.fitting.stage import fit_workspace
-    from mamma_kit.fitting.stages import FitConfig
     from mamma_kit.keypoints.stage import run_keypoints
     from mamma_kit.landmarks.stage import run_landmarks
 
@@ -70,20 +68,13 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     a = ap.parse_args()
     log.set_quiet(True)
-    src = a.workspace
     print(f"{'rounds':>6} {'touching IoU':>12} {'landmarks %':>11} {'contact AUC':>11} {'MPJPE mm':>8} "
           f"{'body':>5} {'hands':>5} {'PA':>5}")
     for r in (int(x) for x in a.rounds.split(",")):
-        dst = a.out / f"rounds{r}"
-        if dst.exists():
-            shutil.rmtree(dst)
-        shutil.copytree(src, dst, ignore=lambda d, n: [x for x in n if Path(d) == src and x in
-                                                       ("report", "smplx", ".cache")])
-        ws = Workspace(dst)
+        ws = fresh_copy(a.workspace, a.out / f"rounds{r}")
         run_keypoints(ws, pictures=False, force=True, threads=a.threads, resplit=r)
         run_landmarks(ws, force=True)
-        fit_workspace(ws, stages=3, config=FitConfig(), threads=a.threads, force=True)
-        m = evaluate_results(ws, [read_smplx_result(p) for p in ws.person_files()], penetration_frames=None)
+        m = refit(ws, a.threads)
         lm = evaluate_landmarks(ws)
         print(f"{r:>6} {touching_iou(ws, r):>12.3f} {lm['error_pct_box_visible']:>11.2f} {lm['contact_auc']:>11.3f} "
               f"{m['mpjpe_mm']:>8.1f} {m['mpjpe_body_mm']:>5.1f} {m['mpjpe_hands_mm']:>5.1f} {m['pa_mpjpe_mm']:>5.1f}",

@@ -99,3 +99,15 @@ def test_person_size_from_legs_or_torso():
     legs_hidden[[25, 26, 27, 28], 3] = 0.0
     assert 100 < person_size(legs_hidden) < 200
     assert person_size(np.full((33, 5), np.nan)) is None
+
+
+def test_rounds_from_the_setting():
+    import pytest
+
+    from mamma_kit.core.errors import UserError
+    from mamma_kit.keypoints.stage import RESPLIT_ROUNDS, resplit_rounds
+
+    assert resplit_rounds(True) == RESPLIT_ROUNDS > 0 and resplit_rounds(False) == 0 and resplit_rounds(3) == 3
+    for bad in ("yes", -1, 1.5):
+        with pytest.raises(UserError, match="rounds"):
+            resplit_rounds(bad)

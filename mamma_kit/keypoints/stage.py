@@ -4,8 +4,9 @@ For every (frame, track) of the mask tracks, BlazePose's 33 points of that perso
 of interest follows the person from frame to frame (the landmark model's own next-frame ROI) and is
 found again by the detector, on the track's masked box, where the track starts or the followed ROI
 leaves the track's box. The other people are blanked out of the model's input by the track's mask,
-so the points stay with the track where people overlap. Each camera is a unit with its own manifest
-(.cache/keypoints-<cam>.json).
+so the points stay with the track where people overlap; where two tracks' masks touch, they are
+re-split by the points found and those people read again (``again_on_resplit``). Each camera is a
+unit with its own manifest (.cache/keypoints-<cam>.json).
 """
 
 from __future__ import annotations
@@ -56,10 +57,9 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
                          resplit: bool | int = True) -> tuple[KeypointTracks, dict]:
     """33 points for every (frame, track) of one camera's mask tracks, streaming the video once.
     ``frames``: only the mask frames start:stop (a unit of a split camera; the ROIs are found
-    afresh by the detector at its first frame). ``resplit`` (with ``blank``; rounds, True =
-    RESPLIT_ROUNDS): where two people's
-    masks touch, they are re-split by the points found (keypoints/resplit.py) and the people whose
-    mask changed are read again on their new mask."""
+    afresh by the detector at its first frame). ``resplit`` (rounds, True = RESPLIT_ROUNDS; with
+    ``blank`` only): where two people's masks touch, they are re-split by the points found
+    (keypoints/resplit.py) and the people whose mask changed are read again on their new mask."""
     from mamma_kit.video import VideoReader
 
     reader = VideoReader(video_path)
