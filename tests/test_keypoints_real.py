@@ -59,26 +59,32 @@ def test_pose_tracker_keeps_exactly_the_two_people_in_every_view(real_ws):
     assert np.mean(both) >= 0.95, f"both people tracked in {np.mean(both):.0%} of the (view, frame) pairs"
 
 
-def test_keypoints_fall_inside_their_own_track(real_ws):
+def limb_points_inside(kt: KeypointTracks, masks: MaskTracks) -> float:
+    """Share of the visible limb points that fall inside their own track's mask, grown by 2 % of the
+    person's height (a point on an outline counts as on it); a point outside the image is outside."""
     import cv2
 
+    inside = []
+    for t, k in zip(*np.nonzero(kt.valid)):
+        m = masks.mask(t, k)
+        if m is None:
+            continue
+        r = max(1, int(0.02 * (masks.boxes[t, k, 3] - masks.boxes[t, k, 1])))
+        m = cv2.dilate(m.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+        ij = np.round(kt.xy[t, k, LIMBS][kt.visibility[t, k, LIMBS] > 0.5]).astype(int)
+        ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < m.shape[1]) & (ij[:, 1] < m.shape[0])
+        inside += list(np.where(ok, m[np.clip(ij[:, 1], 0, m.shape[0] - 1), np.clip(ij[:, 0], 0, m.shape[1] - 1)],
+                                False))
+    return float(np.mean(inside))
+
+
+def test_keypoints_fall_inside_their_own_track(real_ws):
     for c in CAMS:
         mt = MaskTracks.load(real_ws.mask_file(c))
         kt = KeypointTracks.load(real_ws.keypoints_file(c))
         assert kt.valid.sum() >= 0.95 * mt.present.sum()
-        inside = []
-        for t, k in zip(*np.nonzero(kt.valid)):
-            m = mt.mask(t, k)
-            # the mask grown by 2 % of the person's height: a point on an outline counts as on it
-            h = mt.boxes[t, k, 3] - mt.boxes[t, k, 1]
-            r = max(1, int(0.02 * h))
-            m = cv2.dilate(m.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
-            pts = kt.xy[t, k, LIMBS][kt.visibility[t, k, LIMBS] > 0.5]
-            ij = np.round(pts).astype(int)
-            ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < m.shape[1]) & (ij[:, 1] < m.shape[0])
-            inside += list(np.where(ok, m[np.clip(ij[:, 1], 0, m.shape[0] - 1), np.clip(ij[:, 0], 0, m.shape[1] - 1)],
-                                    False))
-        assert np.mean(inside) >= 0.9, f"{c}: {np.mean(inside):.0%} of visible limb points inside their track"
+        share = limb_points_inside(kt, mt)
+        assert share >= 0.9, f"{c}: {share:.0%} of visible limb points inside their track"
 
 
 def test_keypoints_triangulate_with_the_qualisys_calibration(real_ws):
@@ -198,23 +204,6 @@ def sloppy_masks(mt: MaskTracks, reach_frac: float = 0.08) -> MaskTracks:
         out[(t, 0)], out[(t, 1)] = a | (b & near), b & ~near
     return MaskTracks.from_masks(mt.camera, mt.image_size, mt.frame_times, mt.track_ids, out,
                                  producer={"command": "track --backend builtin"})
-
-
-def limb_points_inside(kt: KeypointTracks, truth: MaskTracks) -> float:
-    """Share of the visible limb points that fall inside their person's (pose) mask, grown by 2 %."""
-    import cv2
-
-    inside = []
-    for t, k in zip(*np.nonzero(kt.valid)):
-        m = truth.mask(t, k)
-        if m is None:
-            continue
-        r = max(1, int(0.02 * (truth.boxes[t, k, 3] - truth.boxes[t, k, 1])))
-        m = cv2.dilate(m.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
-        ij = np.round(kt.xy[t, k, LIMBS][kt.visibility[t, k, LIMBS] > 0.5]).astype(int)
-        ij = np.clip(ij, 0, [m.shape[1] - 1, m.shape[0] - 1])
-        inside += list(m[ij[:, 1], ij[:, 0]])
-    return float(np.mean(inside))
 
 
 def test_touching_masks_are_resplit_by_the_points_and_read_again(real_ws):
