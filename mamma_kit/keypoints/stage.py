@@ -133,7 +133,8 @@ def resplit_rounds(resplit: bool | int) -> int:
     return resplit
 
 
-def again_on_resplit(est, img: np.ndarray, rois_n4: np.ndarray, mlist: list, res, rounds: int = RESPLIT_ROUNDS) -> int:
+def again_on_resplit(est, img: np.ndarray, rois_n4: np.ndarray, mlist: list, res,
+                     rounds: int = RESPLIT_ROUNDS) -> int:
     """The frame's masks re-split by the points in ``res`` (one PoseResult row per mask); the people
     whose mask changed are read again on it, their rows of ``res`` replaced in place. Each round
     re-splits the last round's masks with the last round's points (better points cut better; the
