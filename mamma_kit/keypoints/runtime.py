@@ -1,6 +1,6 @@
-"""The shipped BlazePose model files and the LiteRT runtime that runs them.
+"""The shipped BlazePose (and MediaPipe hand) model files and the LiteRT runtime that runs them.
 
-The two .tflite files live in ``models/`` beside this file with their SHA-256 sums (SHA256SUMS)
+The .tflite files live in ``models/`` beside this file with their SHA-256 sums (SHA256SUMS)
 and NOTICE. Nothing is downloaded: a missing or altered file, or a missing runtime, is a UserError.
 """
 
