@@ -33,7 +33,8 @@ def smplx_joints(side: int) -> list[int]:
 
 
 def hands_of_frame(hl, img, kt, t):
-    """{(track column, side): HandResult row} for every valid person of frame t."""
+    """{(track column, side): (21 points (21, 2) px, the model's hand flag, the ROI (4,))} for every
+    valid person of frame t."""
     from mamma_kit.keypoints.hands import hand_rois
 
     ks = np.flatnonzero(kt.valid[t])
@@ -47,33 +48,29 @@ def hands_of_frame(hl, img, kt, t):
 
 
 def synthetic(ws_path: Path, hl, every: int) -> dict:
-    import tomllib
-
     from mamma_kit.core.calibfile import read_calibration
-    from mamma_kit.core.tracks import KeypointTracks
+    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.core.tracks import KeypointTracks, nearest_frames
     from mamma_kit.core.workspace import Workspace
+    from mamma_kit.keypoints.hands import MIN_PRESENCE
     from mamma_kit.video import VideoReader
 
     ws = Workspace(ws_path)
     rig, _ = read_calibration(ws.gt_dir / "calibration.toml")
-    clocks = tomllib.loads((ws.gt_dir / "timing.toml").read_text())["cameras"]
+    clocks, _ = read_timing(ws.gt_dir / "timing.toml")
     gts = [np.load(p) for p in sorted((ws.gt_dir / "smplx").glob("person_*.npz"))]
     cap = ws.load_capture()
     wrist_bp, errs, presence = [], [], []
     for cam in cap.camera_names:
         kt = KeypointTracks.load(ws.keypoints_file(cam))
-        clock = clocks[cam]
+        # each true body's sample at each of the camera's frames (scene clock), -1 where none is near
+        at = [nearest_frames(clocks[cam].to_ref(kt.frame_times), g["frame_times"], tol=0.02) for g in gts]
         for t, (_, img) in enumerate(VideoReader(cap.cameras[cam].video).frames()):
             if t >= len(kt.frame_times):
                 break
             if t % every:
                 continue
-            ts = kt.frame_times[t] * (1 + clock["rate_ppm"] * 1e-6) + clock["offset_s"]
-            truth = []
-            for g in gts:
-                i = int(np.argmin(np.abs(g["frame_times"] - ts)))
-                if abs(g["frame_times"][i] - ts) < 0.02:
-                    truth.append(rig[cam].project(g["joints"][i]))
+            truth = [rig[cam].project(g["joints"][i[t]]) for g, i in zip(gts, at) if i[t] >= 0]
             if not truth:
                 continue
             for (k, side), (xy, pres, _) in hands_of_frame(hl, img, kt, t).items():
@@ -86,7 +83,7 @@ def synthetic(ws_path: Path, hl, every: int) -> dict:
                 errs.append(np.linalg.norm(xy[MP_POINTS] - J[smplx_joints(side)], axis=1) / box_h)
                 presence.append(pres)
     E, P = 100 * np.array(errs), np.array(presence)
-    sure = P > 0.5
+    sure = P > MIN_PRESENCE
     return {"hands": len(P), "sure": float(sure.mean()), "blazepose_wrist": float(np.median(wrist_bp) * 100),
             "wrist": float(np.median(E[:, 0])), "fingers": float(np.median(E[:, 1:])),
             "wrist_sure": float(np.median(E[sure, 0])) if sure.any() else None,
@@ -97,8 +94,10 @@ def real(root: Path, hl, every: int, picture: Path | None) -> dict:
     import cv2
 
     from mamma_kit.core.tracks import KeypointTracks
-    from real_workspace import real_workspace
+    from mamma_kit.keypoints import blazepose as bp
+    from mamma_kit.keypoints.hands import MIN_PRESENCE
     from mamma_kit.video import VideoReader
+    from real_workspace import real_workspace
 
     ws = real_workspace(root, stages=True)
     cap = ws.load_capture()
@@ -114,17 +113,15 @@ def real(root: Path, hl, every: int, picture: Path | None) -> dict:
                 presence.append(pres)
                 sides.append(roi[2])
                 if picture is not None and len(shots) < 12 and t % 30 == 0:
-                    from mamma_kit.keypoints import blazepose as bp
-
                     crop, A = bp.crop_roi(img, roi, 160)
                     c8 = (crop * 255).astype(np.uint8).copy()
                     for q in bp.apply_affine(A, xy):
-                        cv2.circle(c8, (int(q[0]), int(q[1])), 2, (0, 255, 0) if pres > 0.5 else (255, 0, 0), -1)
+                        cv2.circle(c8, (int(q[0]), int(q[1])), 2, (0, 255, 0) if pres > MIN_PRESENCE else (255, 0, 0), -1)
                     shots.append(c8)
     if picture is not None and shots:
         cv2.imwrite(str(picture), cv2.cvtColor(np.hstack(shots), cv2.COLOR_RGB2BGR))
     P = np.array(presence)
-    return {"hands": len(P), "sure": float((P > 0.5).mean()), "roi_side_px": float(np.median(sides))}
+    return {"hands": len(P), "sure": float((P > MIN_PRESENCE).mean()), "roi_side_px": float(np.median(sides))}
 
 
 def main() -> None:

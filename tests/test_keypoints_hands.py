@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 
 from mamma_kit.keypoints import blazepose as bp
-from mamma_kit.keypoints.hands import HAND_SIZE, SIDE_LENGTHS, HandLandmarker, hand_rois
+from mamma_kit.keypoints.hands import HAND_SIZE, MIN_PRESENCE, SIDE_LENGTHS, HandLandmarker, hand_rois
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "pose2sim-multiperson"
 
 
-def _points(wrist, pinky, index, side=0):
+def _points(wrist, pinky, index):
+    """One person's BlazePose points with only the left hand's wrist, pinky and index."""
     xy = np.full((1, 33, 2), np.nan)
-    w, p, i = (15, 17, 19) if side == 0 else (16, 18, 20)
-    xy[0, w], xy[0, p], xy[0, i] = wrist, pinky, index
+    xy[0, 15], xy[0, 17], xy[0, 19] = wrist, pinky, index
     return xy
 
 
@@ -60,7 +60,7 @@ def test_real_hands_are_found_where_blazepose_puts_them():
     for side in (0, 1):
         rois = hand_rois(res.xy, side)
         hands = hl.landmarks(img, rois)
-        for j in np.flatnonzero(hands.presence > 0.5):
+        for j in np.flatnonzero(hands.presence > MIN_PRESENCE):
             sure += 1
             wrist = res.xy[j, 15 + side]
             spread = np.linalg.norm(hands.xy[j] - hands.xy[j, 0], axis=1).max()
