@@ -17,6 +17,7 @@ CAMS = ("cam01", "cam02", "cam03", "cam04")
 # frames 40-59: the two people close together, in cam03 one passing behind the other
 FIRST, COUNT = 40, 20
 LIMBS = np.r_[11:17, 23:29]
+HAND_REPROJECTION_PCT = 2.0
 
 
 def clip(src: Path, dst: Path) -> Path:
@@ -87,36 +88,73 @@ def test_keypoints_fall_inside_their_own_track(real_ws):
         assert share >= 0.9, f"{c}: {share:.0%} of visible limb points inside their track"
 
 
+def views_of(real_ws):
+    """The converted Qualisys rig, each camera's keypoints and masks, and the frames all have."""
+    from mamma_kit.core.calibfile import read_calibration
+
+    rig, _ = read_calibration(real_ws.calibration)
+    kts = [KeypointTracks.load(real_ws.keypoints_file(c)) for c in CAMS]
+    mts = [MaskTracks.load(real_ws.mask_file(c)) for c in CAMS]
+    return rig.subset(list(CAMS)), kts, mts, min(len(k.frame_times) for k in kts)
+
+
+def reprojection_errors(real_ws, perm, points) -> np.ndarray:
+    """Points triangulated from the four views and reprojected, errors in % of the person's height
+    (its mask's box) where a view's weight > 0.5, with camera c's track perm[c][p] as person p;
+    ``points(kt, k, T)`` gives a track's xy (T, N, 2) and weights (T, N)."""
+    from mamma_kit.core.camera import triangulate_points
+
+    rig, kts, mts, T = views_of(real_ws)
+    out = []
+    for p in range(2):
+        xy, w = zip(*(points(kts[c], perm[c][p], T) for c in range(4)))
+        xy, w = np.nan_to_num(np.stack(xy)), np.stack(w)  # (C, T, N, 2), (C, T, N)
+        N = xy.shape[2]
+        X = triangulate_points(rig, xy.reshape(4, -1, 2), w.reshape(4, -1)).reshape(T, N, 3)
+        proj = rig.project(X)  # (C, T, N, 2)
+        h = np.stack([mts[c].boxes[:T, perm[c][p], 3] - mts[c].boxes[:T, perm[c][p], 1] for c in range(4)])
+        err = np.linalg.norm(proj - xy, axis=-1) / h[..., None] * 100
+        out.append(err[(w > 0.5) & np.isfinite(err) & ((w > 0.5).sum(0) >= 2)[None]])
+    return np.concatenate(out)
+
+
+def body_points(kt, k, T):
+    return kt.xy[:T, k], np.where(kt.valid[:T, k, None], kt.visibility[:T, k], 0)
+
+
+PERMS = [[(0, 1)] + [tuple(q) for q in rest] for rest in itertools.product([(0, 1), (1, 0)], repeat=3)]
+
+
 def test_keypoints_triangulate_with_the_qualisys_calibration(real_ws):
     """BlazePose's points from the four views, triangulated with the converted Qualisys rig,
     reproject within 3 % of the person's height (a wrong conversion is off by tens of percent)."""
-    from mamma_kit.core.calibfile import read_calibration
-    from mamma_kit.core.camera import triangulate_points
-
-    rig, _ = read_calibration(real_ws.calibration)
-    rig = rig.subset(list(CAMS))
-    kts = [KeypointTracks.load(real_ws.keypoints_file(c)) for c in CAMS]
-    mts = [MaskTracks.load(real_ws.mask_file(c)) for c in CAMS]
-    T = min(len(k.frame_times) for k in kts)
-
-    def errors(perm):
-        """Reprojection errors (% of height) with camera c's track perm[c][p] as person p."""
-        out = []
-        for p in range(2):
-            xy = np.stack([kts[c].xy[:T, perm[c][p], :, :] for c in range(4)])  # (C, T, 33, 2)
-            w = np.stack([np.where(kts[c].valid[:T, perm[c][p], None], kts[c].visibility[:T, perm[c][p]], 0)
-                          for c in range(4)])
-            X = triangulate_points(rig, xy.reshape(4, -1, 2), w.reshape(4, -1)).reshape(T, 33, 3)
-            proj = rig.project(X)  # (C, T, 33, 2)
-            h = np.stack([mts[c].boxes[:T, perm[c][p], 3] - mts[c].boxes[:T, perm[c][p], 1]
-                          for c in range(4)])  # (C, T) the person's height: its mask's box, px
-            err = np.linalg.norm(proj - xy, axis=-1) / h[..., None] * 100
-            out.append(err[(w > 0.5) & np.isfinite(err)])
-        return np.concatenate(out)
-
-    perms = [[(0, 1)] + [tuple(q) for q in rest] for rest in itertools.product([(0, 1), (1, 0)], repeat=3)]
-    med = min(np.median(errors(p)) for p in perms)
+    med = min(np.median(reprojection_errors(real_ws, p, body_points)) for p in PERMS)
     assert med < 3.0, f"median reprojection {med:.2f} % of the person's height"
+
+
+def test_hands_are_read_with_each_person_and_agree_across_views(real_ws):
+    """The keypoints stage reads both hands of every person (MediaPipe's hand landmarker on the ROIs
+    BlazePose's hand points give): the model is sure of most hands in these views, and the sure
+    hands' 21 points from several views triangulate with the Qualisys rig and reproject within a
+    few % of the person's height, the people's tracks paired across views as their bodies pair."""
+    from mamma_kit.keypoints.hands import MIN_PRESENCE
+
+    _, kts, _, T = views_of(real_ws)
+    for kt in kts:
+        assert kt.hand_xy.shape == kt.valid.shape + (2, 21, 2) and kt.hand_presence.shape == kt.valid.shape + (2,)
+        assert not (kt.hand_presence[~kt.valid] > 0).any()  # hands only of people found
+    sure = np.concatenate([kt.hand_presence[kt.valid] for kt in kts]) > MIN_PRESENCE
+    assert sure.mean() > 0.3, f"the hand model is sure of {sure.mean():.0%} of the hands"
+
+    def hand_points(kt, k, T):
+        w = np.repeat((kt.hand_presence[:T, k] > MIN_PRESENCE).astype(float), 21, axis=-1)  # (T, 42)
+        return kt.hand_xy[:T, k].reshape(T, 42, 2), w
+
+    perm = min(PERMS, key=lambda p: np.median(reprojection_errors(real_ws, p, body_points)))
+    err = reprojection_errors(real_ws, perm, hand_points)
+    assert len(err) > 500
+    print(f"hands: sure {sure.mean():.2f}, {len(err)} points, median {np.median(err):.2f} %, p90 {np.percentile(err, 90):.2f} %")
+    assert np.median(err) < HAND_REPROJECTION_PCT, f"median {np.median(err):.2f} % of the person's height"
 
 
 def test_video_with_nobody_gives_no_tracks_and_an_empty_keypoints_file(tmp_path, cli):

@@ -20,7 +20,10 @@ landmarks/<cam>.npz  (L = 512)
 keypoints/<cam>.npz  (P = 33 BlazePose points, in the model's order: keypoints.blazepose.POINT_NAMES)
     image_size, frame_times, track_ids as above; valid (T, K) bool; xy (T, K, P, 2) px;
     z (T, K, P) depth relative to the hips (px-scaled, smaller = nearer); visibility, presence
-    (T, K, P) in [0, 1]; score (T, K) the model's pose flag (0 where invalid); model (str).
+    (T, K, P) in [0, 1]; score (T, K) the model's pose flag (0 where invalid); model (str);
+    hand_xy (T, K, 2, 21, 2) px of each person's left and right hand (MediaPipe's 21 hand points,
+    NaN where not read), hand_presence (T, K, 2) the hand model's flag (0 where not read) and
+    hand_right (T, K, 2) its handedness score (1: a right hand; NaN where not read).
 
 Every file also holds ``producer`` (JSON string: tool, version, command, input hashes).
 """
@@ -35,6 +38,8 @@ import numpy as np
 
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_npz, write_npz
+
+N_HAND_POINTS = 21  # MediaPipe's hand landmarks per hand (keypoints/hands.py)
 
 
 def nearest_frames(times_a: np.ndarray, times_b: np.ndarray, tol: float | None = None) -> np.ndarray:
@@ -240,6 +245,20 @@ class KeypointTracks:
     score: np.ndarray  # (T, K)
     model: str = ""
     producer: dict = field(default_factory=dict)
+    # each person's hands (0 left, 1 right; MediaPipe's 21 points, keypoints/hands.py): px, NaN where
+    # not read, and the hand model's flag (0 where not read). Files from before hands load as unread.
+    hand_xy: np.ndarray | None = None  # (T, K, 2, 21, 2)
+    hand_presence: np.ndarray | None = None  # (T, K, 2)
+    hand_right: np.ndarray | None = None  # (T, K, 2) the hand model's handedness (1: a right hand; NaN: not read)
+
+    def __post_init__(self):
+        T, K = self.valid.shape
+        if self.hand_xy is None:
+            self.hand_xy = np.full((T, K, 2, N_HAND_POINTS, 2), np.nan, np.float32)
+        if self.hand_presence is None:
+            self.hand_presence = np.zeros((T, K, 2), np.float32)
+        if self.hand_right is None:
+            self.hand_right = np.full((T, K, 2), np.nan, np.float32)
 
     @classmethod
     def empty(cls, camera: str, image_size, frame_times, track_ids, n_points: int = 33,
@@ -250,12 +269,18 @@ class KeypointTracks:
                    np.full((T, K, P), np.nan, np.float32), np.zeros((T, K, P), np.float32),
                    np.zeros((T, K, P), np.float32), np.zeros((T, K), np.float32), model)
 
+    @property
+    def has_hands(self) -> bool:
+        return bool((self.hand_presence > 0).any())
+
     def save(self, path: str | Path) -> Path:
         return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
                          frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,
                          xy=self.xy.astype(np.float32), z=self.z.astype(np.float32),
                          visibility=self.visibility.astype(np.float32), presence=self.presence.astype(np.float32),
                          score=self.score.astype(np.float32), model=np.array(self.model),
+                         hand_xy=self.hand_xy.astype(np.float32), hand_presence=self.hand_presence.astype(np.float32),
+                         hand_right=self.hand_right.astype(np.float32),
                          producer=_producer_str(self.producer))
 
     @classmethod
@@ -265,7 +290,8 @@ class KeypointTracks:
                            "score"))
         return cls(str(d.get("camera", Path(path).stem)), tuple(int(v) for v in d["image_size"]),
                    d["frame_times"], d["track_ids"], d["valid"].astype(bool), d["xy"], d["z"], d["visibility"],
-                   d["presence"], d["score"], str(d.get("model", "")), json.loads(str(d.get("producer", "{}"))))
+                   d["presence"], d["score"], str(d.get("model", "")), json.loads(str(d.get("producer", "{}"))),
+                   d.get("hand_xy"), d.get("hand_presence"), d.get("hand_right"))
 
 
 def _require(d: dict, path, keys) -> None:

@@ -33,6 +33,9 @@ HAND_POINTS = {0: (15, 17, 19), 1: (16, 18, 20)}
 CENTRE_ALONG = 0.9
 SIDE_LENGTHS = 2.8
 MIN_PRESENCE = 0.5  # the model's hand flag below this: no hand in the ROI
+#: bones between the 21 points: each finger's chain from the wrist, and across the knuckles
+HAND_SKELETON = tuple((a, a + 1) for f in range(5) for a in range(4 * f + 1, 4 * f + 4)) + \
+    ((0, 1), (0, 5), (0, 17), (5, 9), (9, 13), (13, 17))
 
 
 def hand_rois(xy_p33: np.ndarray, side: int) -> np.ndarray:

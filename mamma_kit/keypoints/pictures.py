@@ -10,6 +10,7 @@ import numpy as np
 from mamma_kit.core.io import atomic_path
 from mamma_kit.core.tracks import KeypointTracks, nearest_frames, track_colour
 from mamma_kit.keypoints.blazepose import SKELETON
+from mamma_kit.keypoints.hands import HAND_SKELETON, MIN_PRESENCE
 
 PANELS = 4
 # points the model thinks unlikely to be visible are drawn hollow
@@ -29,6 +30,11 @@ def draw_keypoints(rgb_hw3: np.ndarray, kt: KeypointTracks, t: int) -> np.ndarra
         for p, v in zip(xy, kt.visibility[t, k]):
             cv2.circle(img, (int(p[0]), int(p[1])), max(2, thick + 1), col, -1 if v >= VISIBLE else thick,
                        cv2.LINE_AA)
+        for side in np.flatnonzero(kt.hand_presence[t, k] > MIN_PRESENCE):  # the hands the hand model is sure of
+            hxy = kt.hand_xy[t, k, side]
+            for a, b in HAND_SKELETON:
+                cv2.line(img, tuple(int(v) for v in hxy[a]), tuple(int(v) for v in hxy[b]), (255, 255, 255),
+                         max(1, thick // 2), cv2.LINE_AA)
         top = xy[np.isfinite(xy[:, 1])][:, 1].min() if np.isfinite(xy).any() else 12
         org = (int(np.nanmean(xy[:, 0])), int(max(14 * s, top - 8 * s)))
         cv2.putText(img, str(int(kt.track_ids[k])), org, cv2.FONT_HERSHEY_SIMPLEX, 0.8 * s, (0, 0, 0), thick + 2)

@@ -22,6 +22,7 @@ from mamma_kit.core.errors import UserError
 from mamma_kit.core.manifest import StageManifest, producer
 from mamma_kit.core.tracks import KeypointTracks, MaskTracks, join_frame_ranges, nearest_frames, track_frame_count
 from mamma_kit.keypoints.estimator import MIN_FOLLOW_FLAG
+from mamma_kit.keypoints.hands import MIN_PRESENCE as HAND_MIN_PRESENCE
 
 MODEL_NAME = "blazepose-ghum-full"
 # a followed ROI is kept while its centre stays inside the track's box grown by this share and its
@@ -37,6 +38,7 @@ FOLLOW_SIDE_RANGE = (0.6, 3.0)
 # it); a synthetic capture's ground-truth masks are exact
 NO_RESPLIT = ("track --backend pose", "track --backend gt")
 RESPLIT_ROUNDS = 2  # demo: MPJPE (stages 1-3) 48.9 mm without, one round 45.4, two 43.7, three 43.5
+HAND_MODEL = "mediapipe-hand-landmark-full"  # what reads the hands (points, flag, handedness)
 
 
 def _follow_ok(roi_4: np.ndarray, box_4: np.ndarray) -> bool:
@@ -54,12 +56,14 @@ def points_p5(res, j: int) -> np.ndarray:
 
 def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
                          progress_label: str | None = None, frames: tuple[int, int] | None = None,
-                         resplit: bool | int = True) -> tuple[KeypointTracks, dict]:
+                         resplit: bool | int = True, hands=None) -> tuple[KeypointTracks, dict]:
     """33 points for every (frame, track) of one camera's mask tracks, streaming the video once.
     ``frames``: only the mask frames start:stop (a unit of a split camera; the ROIs are found
     afresh by the detector at its first frame). ``resplit`` (rounds, True = RESPLIT_ROUNDS; with
     ``blank`` only): where two people's masks touch, they are re-split by the points found
-    (keypoints/resplit.py) and the people whose mask changed are read again on their new mask."""
+    (keypoints/resplit.py) and the people whose mask changed are read again on their new mask.
+    ``hands``: a keypoints.hands.HandLandmarker that reads both hands of every person found
+    (read_hands), or None."""
     from mamma_kit.video import VideoReader
 
     reader = VideoReader(video_path)
@@ -77,7 +81,7 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
     by_video = {int(v): int(t) for t, v in enumerate(vid_idx) if v >= 0 and present[t].any()}
     follow: dict[int, np.ndarray] = {}  # column -> ROI from the previous frame
     last_t: dict[int, int] = {}
-    n_det = n_follow = n_again = 0
+    n_det = n_follow = n_again = n_hands = 0
     rounds = resplit_rounds(resplit) if blank else 0
     t0 = time.perf_counter()
     total = int(present[[t for t in by_video.values()]].sum()) if by_video else 0
@@ -113,14 +117,31 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
             out.visibility[t, ks] = res.visibility[ok]
             out.presence[t, ks] = res.presence[ok]
             out.score[t, cols] = res.score
+            if hands is not None and len(ks):
+                hand = read_hands(hands, img, res.xy[ok])
+                out.hand_xy[t, ks], out.hand_presence[t, ks], out.hand_right[t, ks] = hand
+                n_hands += 2 * len(ks)
             advance(len(cols))
     secs = time.perf_counter() - t0
     n = int(present.sum())
     summary = {"camera": masks.camera, "instances": n, "with_pose": int(out.valid.sum()),
                "detector_calls": n_det, "followed": n_follow, "resplit": rounds,
-               "read_again": n_again, "seconds": round(secs, 3),
+               "read_again": n_again, "hands_read": n_hands,
+               "hands_sure": int((out.hand_presence > HAND_MIN_PRESENCE).sum()), "seconds": round(secs, 3),
                "person_frames_per_s": round(n / secs, 1) if secs > 0 else None}
     return out, summary
+
+
+def read_hands(hands, img: np.ndarray, xy_p33: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Both hands of P people, their ROIs from BlazePose's points xy_p33 (P, 33, 2): the hand
+    model's 21 points (P, 2, 21, 2) px, flags (P, 2) and handedness (P, 2), in one batch. The frame is not blanked by
+    the masks: a tracker's mask often cuts a hand off, and the ROI already holds one person's hand."""
+    from mamma_kit.keypoints.hands import hand_rois
+
+    P = len(xy_p33)
+    rois = np.concatenate([hand_rois(xy_p33, 0), hand_rois(xy_p33, 1)])  # (2P, 4): left hands, then right
+    r = hands.landmarks(img, rois)
+    return r.xy.reshape(2, P, -1, 2).transpose(1, 0, 2, 3), r.presence.reshape(2, P).T, r.right.reshape(2, P).T
 
 
 def resplit_rounds(resplit: bool | int) -> int:
@@ -160,12 +181,14 @@ def again_on_resplit(est, img: np.ndarray, rois_n4: np.ndarray, mlist: list, res
 
 def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = True, pictures: bool = True,
                   force: bool = False, threads: int | None = None, unit_frames: int | None = None,
-                  resplit: bool | int = True) -> dict:
+                  resplit: bool | int = True, hands: bool = True) -> dict:
     """BlazePose keypoints for every tracked person of every camera (see the module docstring).
     ``unit_frames``: frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES).
     ``resplit``: rounds of touching people read again on masks re-split by their points (True =
-    RESPLIT_ROUNDS; keypoints_for_tracks)."""
+    RESPLIT_ROUNDS; keypoints_for_tracks). ``hands``: each person's hands read by MediaPipe's hand
+    landmarker too (hand_xy, hand_presence in keypoints/<cam>.npz)."""
     from mamma_kit.core.workspace import select_cameras
+    from mamma_kit.keypoints.hands import HAND_LANDMARKER
     from mamma_kit.keypoints.runtime import DETECTOR, LANDMARKER, model_path
 
     cap = ws.load_capture()
@@ -174,8 +197,9 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
     if missing:
         raise UserError(f"no person masks for {', '.join(missing)} (masks/<cam>.npz)",
                         "run `mamma-kit track WORKSPACE` first")
-    models = [model_path(DETECTOR), model_path(LANDMARKER)]
-    settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures, "resplit": resplit_rounds(resplit)}
+    models = [model_path(DETECTOR), model_path(LANDMARKER)] + ([model_path(HAND_LANDMARKER)] if hands else [])
+    settings = {"model": MODEL_NAME, "blank": blank, "pictures": pictures, "resplit": resplit_rounds(resplit),
+                "hands": HAND_MODEL if hands else False}
     t0 = time.perf_counter()
     per_cam, todo = {}, []
     for cam in cams:
@@ -230,17 +254,19 @@ def _keypoints_range(unit: tuple[str, tuple[int, int]], root: Path, models: list
     cap = ws.load_capture()
     if threads not in _ESTIMATORS:  # one estimator per process, as the cameras' loop had
         from mamma_kit.keypoints.estimator import PoseEstimator
+        from mamma_kit.keypoints.hands import HandLandmarker
 
-        _ESTIMATORS[threads] = PoseEstimator(threads)
+        _ESTIMATORS[threads] = PoseEstimator(threads), HandLandmarker(threads)
+    est, hl = _ESTIMATORS[threads]
+    hl = hl if settings["hands"] else None
     masks = MaskTracks.load(ws.mask_file(cam))
     resplit = 0 if masks.producer.get("command") in NO_RESPLIT else settings["resplit"]
     if frames == (0, len(masks.frame_times)):
-        kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank,
-                                        resplit=resplit)
+        kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank, resplit=resplit, hands=hl)
         return _write_camera(ws, cam, kt, summ, models, settings, pictures), None
-    kt, summ = keypoints_for_tracks(_ESTIMATORS[threads], masks, cap.cameras[cam].video, blank,
+    kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank,
                                     progress_label=f"keypoints {cam} {frames[0]}-{frames[1]}", frames=frames,
-                                    resplit=resplit)
+                                    resplit=resplit, hands=hl)
     return summ, kt
 
 
@@ -248,7 +274,8 @@ def _joined_summary(cam: str, summaries: list[dict]) -> dict:
     if len(summaries) == 1:
         return summaries[0]
     out = {"camera": cam, **{k: sum(s.get(k, 0) for s in summaries)
-                             for k in ("instances", "with_pose", "detector_calls", "followed", "read_again")}}
+                             for k in ("instances", "with_pose", "detector_calls", "followed", "read_again",
+                                       "hands_read", "hands_sure")}}
     secs = sum(s["seconds"] for s in summaries)
     out.update({"seconds": round(secs, 3), "units": len(summaries), "resplit": summaries[0].get("resplit"),
                 "person_frames_per_s": round(out["instances"] / secs, 1) if secs > 0 else None})
