@@ -19,9 +19,11 @@ Stage options come from capture.toml, e.g.::
     [settings.sync]        method = "auto"    (and every sync setting; see sync/*.toml)
     [settings.track]       backend = "builtin"   (sam2: sam2_checkpoint, sam2_config, chunk, device)
     [settings.keypoints]   resplit = false | 3   (rounds of touching people read again on masks re-split by their points)
+                           hands = false   (each person's hands read by the hand model too; default true)
     [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8  hands = "off"   (source = "gt" on synthetic data)
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
+                           hand_points = false   (the hand model's points in the fit; default true)
     [settings.report]      video = true
     [settings]             executor = "ray"   ray_address = "HOST:6379"   (core/executor.py; default local)
 
@@ -44,10 +46,10 @@ from mamma_kit.core.workspace import STAGES, Workspace
 KNOWN = {
     "calibrate": {"model", "detect_fps", "max_views", "floor", "board"},
     "track": {"backend", "sam2_checkpoint", "sam2_config", "chunk", "device", "prompts", "pictures", "people"},
-    "keypoints": {"blank", "threads", "pictures", "resplit"},
+    "keypoints": {"blank", "threads", "pictures", "resplit", "hands"},
     "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads", "hands"},
     "match": {"lam", "max_distance", "min_affinity", "plots"},
-    "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model"},
+    "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model", "hand_points"},
     "report": {"video"},
 }
 
@@ -162,7 +164,7 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
 
         res = run_keypoints(ws, blank=bool(opts.get("blank", True)), pictures=bool(opts.get("pictures", True)),
                             force=force, threads=opts.get("threads"), unit_frames=opts.get("unit_frames"),
-                            resplit=opts.get("resplit", True))
+                            resplit=opts.get("resplit", True), hands=bool(opts.get("hands", True)))
     elif stage == "landmarks":
         from mamma_kit.landmarks.stage import run_landmarks
 
@@ -186,6 +188,8 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         from mamma_kit.fitting.stages import FitConfig
 
         cfg = FitConfig(chunk=int(opts.get("chunk", 120)), floor=bool(opts.get("floor", False)))
+        if not opts.get("hand_points", True):
+            cfg.hand_keypoint_weight = 0.0
         res = fit_workspace(ws, opts.get("cameras"), opts.get("camera_list"), int(opts.get("stages", 4)),
                             opts.get("body_model"), cfg, command="mamma-kit capture-to-smplx", force=force,
                             threads=opts.get("threads"))

@@ -383,3 +383,78 @@ def learn_regressor(det: Detections, model, reg0: KeypointRegressor | None = Non
     prov = dict(provenance or {})
     prov.update({"ridge": ridge, "rounds": rounds, "gm_scale": gm_scale, "points": stats})
     return KeypointRegressor(reg0.ids.copy(), W, sig, model.sha256, True, prov)
+
+
+# ---- hands: MediaPipe's 21 points of each hand --------------------------------------------------
+
+_FINGERS = ("thumb", "index", "middle", "ring", "pinky")
+#: MediaPipe's hand points (keypoints/hands.py) on one hand of the skeleton: the wrist, then per finger
+#: (thumb, index, middle, ring, pinky) its three joints (thumb: CMC, MCP, IP; the others MCP, PIP,
+#: DIP = SMPL-X's finger1..3) and the fingertip vertex. Left hand, then right: 42 points.
+HAND_ANCHORS = tuple(
+    (("joint", f"{side}_wrist"),) + tuple(
+        a for f in _FINGERS for a in ((("joint", f"{side}_{f}1"), ("joint", f"{side}_{f}2"),
+                                       ("joint", f"{side}_{f}3"), ("vertex", f"{side}_{f}_tip"))))
+    for side in ("left", "right"))
+HAND_POINT_NAMES = tuple(f"{name}" for side in HAND_ANCHORS for _, name in side)
+N_HAND_POINTS = 2 * 21
+HAND_SUPPORT = 16  # vertices per hand point, all on the point's own finger segment (or palm)
+# fraction of the person's box height: MediaPipe's points on the demo's hands where the model was sure
+# (benchmarks/hand_keypoints.py: wrist 0.85 %, finger joints 1.62 % median; x 1.4826 / 1.18 for a
+# robust standard deviation per point would be close to these)
+HAND_SIGMA_FRAC = (0.012, 0.02)  # wrist, other points
+
+
+def _hand_anchor(model, kind: str, name: str, extra: dict | None) -> tuple[np.ndarray, list[int]]:
+    """(3,) rest position of a hand point and the joints whose vertices may carry it: a joint on
+    its own segment and its parent's (the skin around it); a fingertip on the last segment."""
+    v = model.v_template.numpy().astype(np.float64)
+    J = model.J_template.numpy().astype(np.float64)
+    parents = model.parents.numpy()
+    if kind == "vertex":
+        last = sk.JOINT_NAMES.index(name.replace("_tip", "3"))
+        pos = v[extra[name]] if extra is not None else J[last]
+        return pos, [last]
+    j = sk.JOINT_NAMES.index(name)
+    return J[j], [j, int(parents[j])]
+
+
+def hand_regressor(model, support: int = HAND_SUPPORT) -> KeypointRegressor:
+    """The 42 hand points (HAND_ANCHORS) as non-negative combinations of ``support`` vertices near
+    each anchor whose dominant skinning joint is the anchor's segment (so a point bends with its own
+    finger, not a neighbour's). Not learned: the hand model is sure of too few rendered hands to
+    learn from (benchmarks/hand_keypoints.py: 9-14 %), so the weights only reproduce the anchors."""
+    from scipy.optimize import lsq_linear
+
+    v = model.v_template.numpy().astype(np.float64)
+    dominant = model.weights_dense.numpy().argmax(1)
+    extra = None if model.extra_joint_ids is None else dict(zip(sk.EXTRA_JOINT_NAMES, model.extra_joint_ids))
+    anchors = [a for side in HAND_ANCHORS for a in side]
+    ids = np.zeros((len(anchors), support), np.int64)
+    W = np.zeros((len(anchors), support))
+    for k, (kind, name) in enumerate(anchors):
+        a, joints = _hand_anchor(model, kind, name, extra)
+        cand = np.flatnonzero(np.isin(dominant, joints))
+        if len(cand) < support:  # a coarse body: fall back to the nearest vertices
+            cand = np.arange(len(v))
+        near = cand[np.argsort(np.linalg.norm(v[cand] - a, axis=1))[:support]]
+        ids[k] = np.sort(near)
+        V = v[ids[k]]
+        lam = 1e-3
+        A = np.vstack([V.T, 10.0 * np.ones((1, support)), np.sqrt(lam) * np.eye(support)])
+        b = np.r_[a, 10.0, np.full(support, np.sqrt(lam) / support)]
+        w = lsq_linear(A, b, bounds=(0, np.inf)).x
+        W[k] = w / w.sum()
+    sig = np.array([HAND_SIGMA_FRAC[0] if name.endswith("_wrist") else HAND_SIGMA_FRAC[1] for _, name in anchors])
+    return KeypointRegressor(ids, W, sig, model.sha256, False,
+                             {"made_by": "hand_regressor (anchors on the hand's joints and fingertips, not learned)"})
+
+
+def stacked(*regs: KeypointRegressor) -> KeypointRegressor:
+    """One regressor whose points are those of ``regs`` in order (supports padded with zero weights)."""
+    S = max(r.ids.shape[1] for r in regs)
+    pad = lambda a, fill: np.concatenate([a, np.repeat(fill, S - a.shape[1], 1)], 1)  # noqa: E731
+    ids = np.concatenate([pad(r.ids, r.ids[:, :1]) for r in regs])
+    W = np.concatenate([pad(r.weights, np.zeros_like(r.weights[:, :1])) for r in regs])
+    return KeypointRegressor(ids, W, np.concatenate([r.sigma_frac for r in regs]), regs[0].body_sha256,
+                             all(r.learned for r in regs), {"stacked": [r.provenance for r in regs]})

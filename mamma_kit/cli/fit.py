@@ -42,6 +42,8 @@ def fit_cmd(
     chunk: int = typer.Option(120, "--chunk", min=8, help="Frames per chunk (chunks overlap by 16 frames)."),
     floor: bool = typer.Option(False, "--floor", help="Stage 4 also keeps feet above the floor (z = 0) and on it "
                                                       "where floor contact is predicted."),
+    hands: bool = typer.Option(True, "--hand-points/--no-hand-points", help="Use the hand model's points "
+                               "(keypoints/<cam>.npz, where it is sure of a hand) beside the landmarks."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default: torch's)."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
     json_out: bool = JsonOpt,
@@ -58,12 +60,14 @@ def fit_cmd(
     n_stages = parse_stages(stages)
     names = [c.strip() for c in camera_list.split(",") if c.strip()] if camera_list else None
     cfg = FitConfig(chunk=chunk, floor=floor)
+    if not hands:
+        cfg.hand_keypoint_weight = 0.0
     ws = Workspace(workspace)
     rep = fit_workspace(ws, cameras, names, n_stages, body_model, cfg, force=force, threads=threads,
                         command="mamma-kit fit " + " ".join(
                             x for x in [f"--cameras {cameras}" if cameras else "",
                                         f"--camera-list {camera_list}" if camera_list else "",
-                                        f"--stages {stages}"] if x))
+                                        f"--stages {stages}", "" if hands else "--no-hand-points"] if x))
     if json_out:
         emit_json(rep)
     elif not rep.get("skipped"):

@@ -18,11 +18,18 @@ landmarks, so identities.json maps them alike), taken at the output times the sa
 kp_xy (C, P, T, 33, 2) px, kp_vis (C, P, T, 33) visibility x presence (0 where the view has
 none), kp_size (C, P, T) px the person's size in the view (the larger side of the box of
 its 33 points: the scale of BlazePose's error). None when no selected camera has
-keypoints; cameras without a file have kp_vis 0 (both said in notes).
+keypoints; cameras without a file have kp_vis 0 (both said in notes). The hands read with them
+(keypoints/hands.py), left then right, 21 points each: hand_xy (C, P, T, 42, 2) px, hand_vis
+(C, P, T, 42) the hand model's flag where it is sure of the hand (> MIN_HAND_FLAG), else 0. Its
+handedness is not used: on the real recording in shared/real/, hands whose handedness disagrees with
+BlazePose's side are 3 times as often > 10 % of the box height off the other views, but dropping
+them (a ramp from 0.2 to 0.8 agreement) made the held-out hands worse (benchmarks/heldout_view.py:
+median 2.97 -> 3.07 %, PCK@5 74.0 -> 71.9 %): the fit's robust loss already sets the wrong ones aside.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,6 +43,7 @@ from mamma_kit.core.errors import UserError
 from mamma_kit.core.tracks import LandmarkTracks
 from mamma_kit.core.workspace import Workspace
 
+MIN_HAND_FLAG = 0.5  # keypoints.hands.MIN_PRESENCE: below it the hand model saw no hand
 NEAR_FRAC = 0.25  # use a lone neighbouring frame when within this fraction of a frame interval
 MIN_SIGMA = 0.25  # px: the fit divides by sigma
 
@@ -61,7 +69,12 @@ class FitData:
     kp_xy: np.ndarray | None = None
     kp_vis: np.ndarray | None = None
     kp_size: np.ndarray | None = None
+    hand_xy: np.ndarray | None = None
+    hand_vis: np.ndarray | None = None
 
+    @property
+    def has_hands(self) -> bool:
+        return self.hand_vis is not None and bool((self.hand_vis > 0).any())
     @property
     def has_keypoints(self) -> bool:
         return self.kp_vis is not None and bool((self.kp_vis > 0).any())
@@ -81,7 +94,7 @@ class FitData:
         return FitData(self.rig, self.clocks, self.reference, self.frame_camera, self.frame_times[s], self.fps,
                        self.person_ids, sub(self.xy), sub(self.sigma), sub(self.vis), sub(self.contact),
                        sub(self.floor), sub(self.present), self.landmark_set, self.notes, self.inputs,
-                       sub(self.kp_xy), sub(self.kp_vis), sub(self.kp_size))
+                       sub(self.kp_xy), sub(self.kp_vis), sub(self.kp_size), sub(self.hand_xy), sub(self.hand_vis))
 
 
 def _read_clocks(ws: Workspace, names: list[str]) -> tuple[dict[str, ClockModel], str, list[str]]:
@@ -171,23 +184,27 @@ def sampled_tracks(track_ids: np.ndarray, valid_tk: np.ndarray, cam_pmap: dict, 
 
 def point_box_size(xy_tk_n2: np.ndarray) -> np.ndarray:
     """Larger side (px) of the box around each detection's points: (..., n, 2) -> (...)."""
-    with np.errstate(invalid="ignore"):
+    with warnings.catch_warnings():  # rows without any point are NaN (then 0): no warning for them
+        warnings.simplefilter("ignore", RuntimeWarning)
         ext = np.nanmax(xy_tk_n2, -2) - np.nanmin(xy_tk_n2, -2)
     return np.nan_to_num(ext.max(-1), nan=0.0)
 
 
 def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.ndarray, pmap: dict,
                    pindex: dict, image_sizes: dict) -> tuple[np.ndarray | None, ...]:
-    """kp_xy, kp_vis, kp_size (module doc) and the files read; Nones without any file."""
+    """kp_xy, kp_vis, kp_size, hand_xy, hand_vis (module doc) and the files read; Nones without
+    any file."""
     from mamma_kit.core.tracks import KeypointTracks
 
     have = [n for n in names if ws.keypoints_file(n).is_file()]
     if not have:
-        return None, None, None, []
+        return None, None, None, None, None, []
     C, P, T = len(names), len(pindex), len(out_t)
     kp_xy = np.zeros((C, P, T, 33, 2), np.float32)
     kp_vis = np.zeros((C, P, T, 33), np.float32)
     kp_size = np.zeros((C, P, T), np.float32)
+    hand_xy = np.zeros((C, P, T, 42, 2), np.float32)
+    hand_vis = np.zeros((C, P, T, 42), np.float32)
     taken = np.zeros((C, P, T), bool)
     for ci, n in enumerate(names):
         if n not in have:
@@ -214,7 +231,15 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
             kp_vis[ci, pi, take] = vv
             kp_size[ci, pi, take] = mix(size_tk)
             taken[ci, pi, take] = True
-    return kp_xy, kp_vis, kp_size, [ws.keypoints_file(n) for n in have]
+            # an unsure frame counts as a flag of -1 in the mix: a hand between a sure and an unsure
+            # frame keeps a weight only when it is mostly the sure one's
+            h_xy = mix(kt.hand_xy).reshape(-1, 42, 2)
+            flag = mix(np.where(kt.hand_presence > MIN_HAND_FLAG, kt.hand_presence, -1.0))  # (n, 2)
+            hv = np.repeat(np.clip(flag, 0, 1), 21, axis=-1)
+            hv[~np.isfinite(h_xy).all(-1)] = 0.0
+            hand_xy[ci, pi, take] = np.nan_to_num(h_xy)
+            hand_vis[ci, pi, take] = hv
+    return kp_xy, kp_vis, kp_size, hand_xy, hand_vis, [ws.keypoints_file(n) for n in have]
 
 
 def select_cameras(rig: Rig, cameras: int | None, camera_list: list[str] | None) -> list[str]:
@@ -317,9 +342,9 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
     sets = {lt.landmark_set for lt in tracks.values()}
     inputs = [ws.calibration] + [ws.landmarks_file(n) for n in names]
     inputs += [p for p in (ws.timing, ws.identities) if p.is_file()]
-    kp_xy = kp_vis = kp_size = None
+    kp_xy = kp_vis = kp_size = hand_xy = hand_vis = None
     if keypoints:
-        kp_xy, kp_vis, kp_size, kp_files = load_keypoints(
+        kp_xy, kp_vis, kp_size, hand_xy, hand_vis, kp_files = load_keypoints(
             ws, names, {n: clocks[n].to_ref for n in names}, out_t, pmap, pindex, {n: rig[n].size for n in names})
         inputs += kp_files
         if not kp_files:
@@ -328,4 +353,5 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
             notes.append("no keypoints for " + ", ".join(n for n in names if not ws.keypoints_file(n).is_file())
                          + ": the keypoint energy uses the other views")
     return FitData(rig, clocks, reference, frame_camera, out_t, fps, person_ids, xy, sigma, vis, contact, floor,
-                   present, ",".join(sorted(s for s in sets if s)), notes, inputs, kp_xy, kp_vis, kp_size)
+                   present, ",".join(sorted(s for s in sets if s)), notes, inputs, kp_xy, kp_vis, kp_size,
+                   hand_xy, hand_vis)

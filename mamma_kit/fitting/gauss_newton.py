@@ -58,17 +58,19 @@ class Obs:
 class PointSet:
     """Observed points beside the landmarks: kin a BodyKinematics of regressed points,
     obs (xy, sigma (C, P, T, K, 2), w (C, P, T, K)); weight (K,) multiplies w (e.g. stage 1:
-    the rigid points only)."""
+    the rigid points only); groups ((name, count), ...) names consecutive points for the
+    energy report (default: all of them "keypoints")."""
 
     kin: BodyKinematics
     obs: Obs
     weight: torch.Tensor | None = None
+    groups: tuple[tuple[str, int], ...] | None = None
 
     def frames(self, s) -> "PointSet":
-        return PointSet(self.kin, self.obs.frames(s), self.weight)
+        return PointSet(self.kin, self.obs.frames(s), self.weight, self.groups)
 
     def with_weight(self, weight: torch.Tensor | None) -> "PointSet":
-        return PointSet(self.kin, self.obs, weight)
+        return PointSet(self.kin, self.obs, weight, self.groups)
 
 
 @dataclass
@@ -337,11 +339,17 @@ class GaussNewton:
         ``extra``: with the extra term (contact) on its current active set."""
         g = self.cfg.gamma_end
         f = self.kin.forward(st.betas, st.rot, st.transl)
-        out = {"landmarks": float(self.data_terms(f.v, g, jac=False).sum()),
-               "keypoints": float(self.point_terms(self.point_forward(f, st), g, jac=False).sum())
-               if self.points is not None else 0.0,
-               "pose_prior": float(self.prior_terms(st.rot).sum()),
-               "shape_prior": float(self.cfg.shape_weight * (st.betas ** 2).sum()) if self.cfg.optimize_betas else 0.0}
+        out = {"landmarks": float(self.data_terms(f.v, g, jac=False).sum()), "keypoints": 0.0}
+        if self.points is not None:
+            v = self.point_forward(f, st).v
+            start = 0
+            for name, n in self.points.groups or (("keypoints", v.shape[2]),):
+                sl = slice(start, start + n)
+                out[name] = float(reprojection_terms(self.cams, self.p_xy[..., sl, :], self.p_inv_sigma[..., sl, :],
+                                                     self.p_w[..., sl], v[:, :, sl], g, jac=False).sum())
+                start += n
+        out |= {"pose_prior": float(self.prior_terms(st.rot).sum()),
+                "shape_prior": float(self.cfg.shape_weight * (st.betas ** 2).sum()) if self.cfg.optimize_betas else 0.0}
         if self.times is not None:
             out["temporal"] = float(self.temporal_terms(f.joints).sum())
         if self.cfg.extra is not None and extra:

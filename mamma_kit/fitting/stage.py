@@ -44,10 +44,11 @@ def reprojection_report(model, data, result: FitResult, min_vis: float = 0.5) ->
     return out
 
 
-def keypoint_report(model, data, result: FitResult, regressor, min_vis: float = 0.5) -> dict:
+def keypoint_report(model, data, result: FitResult, regressor, min_vis: float = 0.5, hands: bool = False) -> dict:
     """Per camera: median / mean / 90th percentile px between BlazePose's points (visibility
     x presence > min_vis) and the fitted bodies' regressed points, and the median in % of
-    the person's size in the view."""
+    the person's size in the view; ``hands``: the same for the hand points (data.hand_xy,
+    where the hand model was sure) with a hand regressor."""
     import torch
 
     from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp
@@ -58,8 +59,9 @@ def keypoint_report(model, data, result: FitResult, regressor, min_vis: float = 
         f = kin.forward(torch.as_tensor(result.betas), so3_exp(torch.as_tensor(result.pose)),
                         torch.as_tensor(result.transl), dtype=torch.float64)
         uv, valid = RigTensors.from_rig(data.rig).project(f.v[None])
-    err = np.linalg.norm(uv.numpy() - data.kp_xy, axis=-1)  # (C, P, T, 33)
-    use = (data.kp_vis > min_vis) & valid.numpy() & (data.kp_size[..., None] > 0)
+    xy, vis = (data.hand_xy, data.hand_vis) if hands else (data.kp_xy, data.kp_vis)
+    err = np.linalg.norm(uv.numpy() - xy, axis=-1)  # (C, P, T, K)
+    use = (vis > min_vis) & valid.numpy() & (data.kp_size[..., None] > 0)
     rel = err / np.maximum(data.kp_size[..., None], 1e-6) * 100
     out = {}
     for i, n in enumerate(data.cameras):
@@ -135,11 +137,17 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         "chunks": result.chunks,
         "stage_stats": {k: v.to_dict() for k, v in result.stats.items()},
         "reprojection_px": reprojection_report(model, data, result),
-        "keypoints": ({"used": True, "weight": cfg.keypoint_weight, "regressor_learned": fitter.regressor.learned,
-                       "reprojection_px": keypoint_report(model, data, result, fitter.regressor)}
+        "keypoints": ({"used": True, "weight": cfg.keypoint_weight,
+                       "regressor_learned": fitter.body_regressor.learned,
+                       "reprojection_px": keypoint_report(model, data, result, fitter.body_regressor)}
                       if fitter.kp is not None else
                       {"used": False, "why": "no keypoints/<cam>.npz" if not data.has_keypoints
                        else "keypoint_weight is 0"}),
+        "hand_keypoints": ({"used": True, "weight": cfg.hand_keypoint_weight,
+                            "reprojection_px": keypoint_report(model, data, result, fitter.hand_regressor, hands=True)}
+                           if fitter.hands else
+                           {"used": False, "why": "no hand the hand model was sure of in keypoints/<cam>.npz"
+                            if not data.has_hands else "hand_keypoint_weight or keypoint_weight is 0"}),
         "seconds": round(secs, 2), "threads": torch.get_num_threads(),
         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "notes": data.notes,

@@ -105,6 +105,12 @@ class FitConfig:
     # 7.3 -> 7.1 mm, 7 % / 20 % outliers 65.3 -> 37.6 mm; at 1.0 the detector's own error
     # costs good landmarks (7.3 -> 10.8 mm) (benchmarks/fit_accuracy.py --keypoints)
     keypoint_weight: float = 0.1
+    # MediaPipe's hand points (keypoints/hands.py, where the hand model is sure of a hand) beside them,
+    # each weighed as hand_keypoint_weight x L / 33 (as a keypoint at keypoint_weight); 0 = off. On the
+    # real recording's held-out views (benchmarks/heldout_view.py) the fitted hands against the hand
+    # model's points there: off 3.26 % of the box / PCK@5 69.8 %, 0.1 2.97 / 74.0, 0.3 2.90 / 73.7
+    # (the body's points 4.19 / 4.19 / 4.26 %)
+    hand_keypoint_weight: float = 0.1
     keypoint_min_sigma_px: float = 1.0  # a keypoint's sigma is never below this
     landmark_weight: float = 1.0  # 0: keypoints alone (benchmarks)
 
@@ -270,10 +276,15 @@ class Fitter:
         self.kin_s1 = BodyKinematics(model, model.landmark_ids[self.s1_sel])
         self.tau = torch.as_tensor([self.cfg.tau_px_4k * max(c.size) / 3840.0 for c in data.rig], dtype=torch.float32)
         self.kp = None  # keypoints: regressor and its kinematics, when the data has keypoints and they are on
+        self.hands = False  # the hands' 42 points follow the 33 in the point set
         if data.has_keypoints and self.cfg.keypoint_weight > 0:
-            from mamma_kit.body.kp_regressor import RIGID_POINTS, keypoint_regressor
+            from mamma_kit.body.kp_regressor import RIGID_POINTS, hand_regressor, keypoint_regressor, stacked
 
-            self.regressor = keypoint_regressor(model)
+            self.body_regressor = self.regressor = keypoint_regressor(model)
+            if data.has_hands and self.cfg.hand_keypoint_weight > 0:
+                self.hand_regressor = hand_regressor(model)
+                self.regressor = stacked(self.body_regressor, self.hand_regressor)
+                self.hands = True
             self.kin_kp = BodyKinematics(model, regressor=self.regressor)
             rigid = torch.zeros(self.regressor.n_points, dtype=torch.float32)
             rigid[list(RIGID_POINTS)] = 1.0
@@ -287,22 +298,33 @@ class Fitter:
     def _obs(self, d: FitData) -> Obs:
         return Obs(torch.as_tensor(d.xy), torch.as_tensor(d.sigma), torch.as_tensor(self._lm_vis(d)))
 
+    def point_xy(self, d: FitData) -> np.ndarray:
+        """(C, P, T, K, 2) px the observed points: BlazePose's 33 (then the hands' 42)."""
+        return np.concatenate([d.kp_xy, d.hand_xy], 3) if self.hands else d.kp_xy
+
     def keypoint_sigma(self, d: FitData) -> np.ndarray:
-        """(C, P, T, 33) px: the regressor's per-point error x the person's size in the view."""
+        """(C, P, T, K) px: the regressor's per-point error x the person's size in the view."""
         sig = self.regressor.sigma_frac[None, None, None, :] * d.kp_size[..., None]
         return np.maximum(sig, self.cfg.keypoint_min_sigma_px).astype(np.float32)
 
     def keypoint_weights(self, d: FitData) -> np.ndarray:
-        """(C, P, T, 33): visibility x presence x keypoint_weight x L / 33 (see FitConfig)."""
+        """(C, P, T, K): visibility x presence x keypoint_weight x L / 33 (see FitConfig), then the
+        hands' flags x hand_keypoint_weight x L / 33."""
         balance = d.shape[3] / d.kp_vis.shape[-1]
-        return (d.kp_vis * (d.kp_size[..., None] > 0) * (self.cfg.keypoint_weight * balance)).astype(np.float32)
+        seen = d.kp_size[..., None] > 0
+        w = d.kp_vis * seen * (self.cfg.keypoint_weight * balance)
+        if self.hands:
+            w = np.concatenate([w, d.hand_vis * seen * (self.cfg.hand_keypoint_weight * balance)], 3)
+        return w.astype(np.float32)
 
     def _points(self, d: FitData) -> PointSet | None:
         if self.kp is None:
             return None
         sig = torch.as_tensor(self.keypoint_sigma(d))
-        return PointSet(self.kin_kp, Obs(torch.as_tensor(d.kp_xy), sig[..., None].expand(*sig.shape, 2).contiguous(),
-                                         torch.as_tensor(self.keypoint_weights(d))))
+        groups = (("keypoints", d.kp_vis.shape[-1]), ("hand_keypoints", 42)) if self.hands else None
+        return PointSet(self.kin_kp, Obs(torch.as_tensor(self.point_xy(d)),
+                                         sig[..., None].expand(*sig.shape, 2).contiguous(),
+                                         torch.as_tensor(self.keypoint_weights(d))), groups=groups)
 
     def observed(self, d: FitData) -> np.ndarray:
         """(P, T): frames that at least ``min_views`` views see the person in (see MIN_VISIBLE_*)."""
@@ -324,7 +346,7 @@ class Fitter:
         if self.kp is None:
             centres, c_ok = finit.body_centres(d.rig, dirs, vis)
         else:  # keypoint rays place the body too (the only rays when landmarks are off)
-            _, kdirs = finit.rays(d.rig, d.kp_xy)
+            _, kdirs = finit.rays(d.rig, self.point_xy(d))
             kw = self.keypoint_weights(d)
             centres, c_ok = finit.body_centres(d.rig, np.concatenate([dirs, kdirs], 3), np.concatenate([vis, kw], 3))
         X, info = finit.triangulate(d.rig, dirs, d.xy, d.sigma, vis, centres)
@@ -332,7 +354,7 @@ class Fitter:
             from mamma_kit.body.kp_regressor import RIGID_POINTS
 
             ksig = self.keypoint_sigma(d)
-            Xk, kp_info = finit.triangulate(d.rig, kdirs, d.kp_xy, np.repeat(ksig[..., None], 2, -1), kw, centres)
+            Xk, kp_info = finit.triangulate(d.rig, kdirs, self.point_xy(d), np.repeat(ksig[..., None], 2, -1), kw, centres)
             rig_ids = list(RIGID_POINTS)
             rest_kp = self.kin_kp.rest_points(torch.zeros(1, self.kin.shapedirs.shape[-1], dtype=DTYPE))[0].numpy()
             extra = (rest_kp[rig_ids], Xk[:, :, rig_ids], kp_info[:, :, rig_ids])
