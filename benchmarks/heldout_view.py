@@ -18,7 +18,13 @@ the 33, the face's ten points would weigh the nose ten times) that BlazePose see
 (visibility >= 0.5) and that both the fit and the triangulation give. BlazePose in c is itself a
 few % off the truth, so both figures include its error; only their difference is the method's.
 
+The hands the same way: the hand model's 21 points of each hand it is sure of in c (keypoints/hands.py)
+against the fitted body's hand points (kp_regressor.hand_regressor) and against the other views'
+sure hand points triangulated, with PCK at 5 % as well (a hand is about 10 % of the box height).
+--fit-hands off fits without the hand points (FitConfig.hand_keypoint_weight 0) for comparison.
+
     nice -n 10 python benchmarks/heldout_view.py [--root /work/bench/heldout] [--threads 2] [--hands off]
+        [--fit-hands off]
 """
 
 from __future__ import annotations
@@ -37,7 +43,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from real_workspace import real_workspace  # noqa: E402
 
 BODY_POINTS = np.r_[0, 11:33]
+HAND_POINTS = 33 + np.arange(42)  # the hands' 21 points each, after the 33 (kp_regressor.stacked)
 MIN_VIS = 0.5
+MIN_HAND_FLAG = 0.5  # the hand model sure of the hand
 
 
 def cli(*args) -> None:
@@ -60,11 +68,15 @@ def prepare(root: Path, threads: int, hands: str = "auto"):
     return ws
 
 
-def heldout_copy(ws, cam: str, root: Path):
+def heldout_dir(root: Path, cam: str, fit_hands: bool) -> Path:
+    return root / ("heldout" if fit_hands else "heldout-no-hand-points") / cam
+
+
+def heldout_copy(ws, cam: str, root: Path, fit_hands: bool = True):
     """A hard-linked copy of the workspace for fitting without ``cam``."""
     from mamma_kit.core.workspace import Workspace
 
-    dst = root / "heldout" / cam
+    dst = heldout_dir(root, cam, fit_hands)
     if dst.exists():
         shutil.rmtree(dst)
     shutil.copytree(ws.root, dst, copy_function=os.link,
@@ -73,7 +85,7 @@ def heldout_copy(ws, cam: str, root: Path):
 
 
 def fitted_points(ws, model, reg) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per fitted person id: (frame_times (T,), BlazePose points (T, 33, 3) of the fitted body)."""
+    """Per fitted person id: (frame_times (T,), points (T, K, 3) of the fitted body by ``reg``)."""
     from mamma_kit.body.lbs import pose_mesh_np
     from mamma_kit.core.smplxfile import read_smplx_result
 
@@ -86,24 +98,62 @@ def fitted_points(ws, model, reg) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int, reuse: bool = False) -> dict:
-    from mamma_kit.core.calibfile import read_calibration
+def triangulated(rig, others, kts, kt_times_t, idx_of, xy_of, w_of):
+    """The other views' points of one person at one time, triangulated (N, 3) (None with < 2 views)."""
     from mamma_kit.core.camera import Rig, triangulate_points
+    from mamma_kit.core.tracks import nearest_frames
+
+    xy_c, w_c, cams = [], [], []
+    for c, ot in others:
+        ko = np.flatnonzero(kts[c].track_ids == ot)
+        to = nearest_frames(kt_times_t, kts[c].frame_times)[0] if len(ko) else -1
+        if to < 0 or not kts[c].valid[to, ko[0]]:
+            continue
+        xy_c.append(xy_of(kts[c], to, ko[0]))
+        w_c.append(w_of(kts[c], to, ko[0]))
+        cams.append(rig[c])
+    if len(cams) < 2:
+        return None
+    return triangulate_points(Rig(cams), np.nan_to_num(np.stack(xy_c)), np.stack(w_c))
+
+
+def body_xy(kt, t, k):
+    return kt.xy[t, k, BODY_POINTS]
+
+
+def body_w(kt, t, k):
+    v = kt.visibility[t, k, BODY_POINTS]
+    return np.where(v >= MIN_VIS, v, 0.0)
+
+
+def hand_xy(kt, t, k):
+    return kt.hand_xy[t, k].reshape(42, 2)
+
+
+def hand_w(kt, t, k):
+    sure = (kt.hand_presence[t, k] > MIN_HAND_FLAG) & np.isfinite(kt.hand_xy[t, k]).all((-1, -2))
+    return np.repeat(sure.astype(float), 21)
+
+
+def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int, reuse: bool = False,
+                    fit_hands: bool = True) -> dict:
+    from mamma_kit.core.calibfile import read_calibration
     from mamma_kit.core.identities import read_identities
     from mamma_kit.core.tracks import KeypointTracks, MaskTracks, nearest_frames
 
     others = [c for c in ws.load_capture().camera_names if c != cam]
     full = read_identities(ws.identities)
     t0 = time.perf_counter()
-    done = root / "heldout" / cam
+    done = heldout_dir(root, cam, fit_hands)
     if reuse and (done / "smplx" / "fit_report.json").is_file():  # a finished held-out fit
         from mamma_kit.core.workspace import Workspace
 
         hw = Workspace(done)
     else:
-        hw = heldout_copy(ws, cam, root)
+        hw = heldout_copy(ws, cam, root, fit_hands)
         cli("match", hw.root, "--cameras", ",".join(others), "--no-plots", "-q")
-        cli("fit", hw.root, "--camera-list", ",".join(others), "--threads", threads, "-q")
+        cli("fit", hw.root, "--camera-list", ",".join(others), "--threads", threads, "-q",
+            *([] if fit_hands else ["--no-hand-points"]))
     fit_s = time.perf_counter() - t0
     held = read_identities(hw.identities)
     rig, _ = read_calibration(ws.calibration)
@@ -111,7 +161,7 @@ def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int, reuse: b
     kts = {c: KeypointTracks.load(ws.keypoints_file(c)) for c in [cam, *others]}
     mt = MaskTracks.load(ws.mask_file(cam))
     fits = fitted_points(hw, model, reg)
-    err_fit, err_tri = [], []
+    err_fit, err_tri, hand_fit, hand_tri = [], [], [], []
     for pid, (times, pts_tk3) in fits.items():
         # the held-out match's person -> the full match's person (its tracks) -> its tracks in cam
         full_ids = {full.person_of(c, t) for c, t in held.tracks_of(pid)} - {None}
@@ -125,43 +175,40 @@ def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int, reuse: b
             kt = kts[cam]
             idx = nearest_frames(kt.frame_times, times)  # cam's frames -> fitted frames
             for t in np.flatnonzero(kt.valid[:, k] & (idx >= 0)):
-                det = kt.xy[t, k, BODY_POINTS]
-                vis = kt.visibility[t, k, BODY_POINTS] >= MIN_VIS
                 box = mt.boxes[t, k]
                 h = float(box[3] - box[1])
-                if not vis.any() or not np.isfinite(h) or h <= 0:
+                if not np.isfinite(h) or h <= 0:
                     continue
-                uv_fit = cam_c.project(pts_tk3[idx[t]][BODY_POINTS])
-                # the anchor: the other views' detections of this person at this time, triangulated
-                xy_c, w_c, cams = [], [], []
-                for c, ot in other_tracks:
-                    ko = np.flatnonzero(kts[c].track_ids == ot)
-                    to = nearest_frames(kt.frame_times[t:t + 1], kts[c].frame_times)[0] if len(ko) else -1
-                    if to < 0 or not kts[c].valid[to, ko[0]]:
+                uv_all = cam_c.project(pts_tk3[idx[t]])
+                for sel, xy_of, w_of, e_fit, e_tri in ((BODY_POINTS, body_xy, body_w, err_fit, err_tri),
+                                                      (HAND_POINTS, hand_xy, hand_w, hand_fit, hand_tri)):
+                    seen = w_of(kt, t, k) > 0
+                    if not seen.any():
                         continue
-                    xy_c.append(kts[c].xy[to, ko[0], BODY_POINTS])
-                    w_c.append(np.where(kts[c].visibility[to, ko[0], BODY_POINTS] >= MIN_VIS,
-                                        kts[c].visibility[to, ko[0], BODY_POINTS], 0.0))
-                    cams.append(rig[c])
-                if len(cams) < 2:
-                    continue
-                X = triangulate_points(Rig(cams), np.stack(xy_c), np.stack(w_c))
-                ok = vis & np.isfinite(X).all(1) & np.isfinite(uv_fit).all(1)
-                if not ok.any():
-                    continue
-                uv_tri = cam_c.project(X[ok])
-                err_fit.append(np.linalg.norm(uv_fit[ok] - det[ok], axis=1) / h)
-                err_tri.append(np.linalg.norm(uv_tri - det[ok], axis=1) / h)
-    ef = np.concatenate(err_fit) if err_fit else np.zeros(0)
-    et = np.concatenate(err_tri) if err_tri else np.zeros(0)
+                    # the anchor: the other views' detections of this person at this time, triangulated
+                    X = triangulated(rig, other_tracks, kts, kt.frame_times[t:t + 1], None, xy_of, w_of)
+                    if X is None:
+                        continue
+                    uv_fit = uv_all[sel]
+                    ok = seen & np.isfinite(X).all(1) & np.isfinite(uv_fit).all(1)
+                    if not ok.any():
+                        continue
+                    det = xy_of(kt, t, k)
+                    e_fit.append(np.linalg.norm(uv_fit[ok] - det[ok], axis=1) / h)
+                    e_tri.append(np.linalg.norm(cam_c.project(X[ok]) - det[ok], axis=1) / h)
+    cat = lambda e: np.concatenate(e) if e else np.zeros(0)  # noqa: E731
+    ef, et, hf, ht = cat(err_fit), cat(err_tri), cat(hand_fit), cat(hand_tri)
     return {"camera": cam, "points": int(len(ef)), "fit_seconds": round(fit_s, 1), "fit": summary(ef),
-            "triangulated": summary(et), "_fit": ef, "_tri": et}
+            "triangulated": summary(et), "hand_points": int(len(hf)), "hands_fit": summary(hf, 5),
+            "hands_triangulated": summary(ht, 5), "_fit": ef, "_tri": et, "_hfit": hf, "_htri": ht}
 
 
-def summary(e: np.ndarray) -> dict:
+def summary(e: np.ndarray, *also: int) -> dict:
+    """Median (% of the box height) and PCK at 10 % (and at each of ``also`` %)."""
     if not len(e):
-        return {"median_pct": None, "pck10": None}
-    return {"median_pct": round(float(np.median(e)) * 100, 2), "pck10": round(float((e < 0.10).mean()) * 100, 1)}
+        return {"median_pct": None, "pck10": None, **{f"pck{p}": None for p in also}}
+    return {"median_pct": round(float(np.median(e)) * 100, 2), "pck10": round(float((e < 0.10).mean()) * 100, 1),
+            **{f"pck{p}": round(float((e < p / 100).mean()) * 100, 1) for p in also}}
 
 
 def main() -> None:
@@ -172,8 +219,9 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--reuse", action="store_true", help="evaluate held-out fits already in ROOT/heldout/<cam>")
     ap.add_argument("--hands", default="auto", help="the landmarks' hand refinement: auto (default) or off")
+    ap.add_argument("--fit-hands", default="on", choices=("on", "off"), help="the hand model's points in the fit")
     a = ap.parse_args()
-    from mamma_kit.body.kp_regressor import keypoint_regressor
+    from mamma_kit.body.kp_regressor import hand_regressor, keypoint_regressor, stacked
     from mamma_kit.body.model import load_body_model
     from mamma_kit.core import log
 
@@ -183,20 +231,27 @@ def main() -> None:
     ws = prepare(a.root, a.threads, a.hands)
     log.set_quiet(True)
     model = load_body_model(ws.load_capture().body_model)
-    reg = keypoint_regressor(model)
+    reg = stacked(keypoint_regressor(model), hand_regressor(model))
     cams = a.cameras.split(",") if a.cameras else ws.load_capture().camera_names
     rows = []
     for cam in cams:
-        r = evaluate_camera(ws, cam, a.root, model, reg, a.threads, a.reuse)
+        r = evaluate_camera(ws, cam, a.root, model, reg, a.threads, a.reuse, a.fit_hands == "on")
         rows.append(r)
         print(f"held out {cam}: fit {r['fit']['median_pct']} % of box height, PCK@10 {r['fit']['pck10']} %   |   "
               f"triangulated keypoints {r['triangulated']['median_pct']} %, PCK@10 {r['triangulated']['pck10']} %   "
               f"[{r['points']} points, fit {r['fit_seconds']} s]", flush=True)
-    ef = np.concatenate([r.pop("_fit") for r in rows])
-    et = np.concatenate([r.pop("_tri") for r in rows])
-    tot = {"fit": summary(ef), "triangulated": summary(et), "points": int(len(ef))}
+        print(f"    hands: fit {r['hands_fit']['median_pct']} %, PCK@5 {r['hands_fit']['pck5']} %   |   triangulated "
+              f"{r['hands_triangulated']['median_pct']} %, PCK@5 {r['hands_triangulated']['pck5']} %   "
+              f"[{r['hand_points']} points]", flush=True)
+    ef, et, hf, ht = (np.concatenate([r.pop(k) for r in rows]) for k in ("_fit", "_tri", "_hfit", "_htri"))
+    tot = {"fit": summary(ef), "triangulated": summary(et), "points": int(len(ef)),
+           "hands_fit": summary(hf, 5), "hands_triangulated": summary(ht, 5), "hand_points": int(len(hf))}
     print(f"all cameras: fit {tot['fit']['median_pct']} % / PCK@10 {tot['fit']['pck10']} %   vs   triangulated "
           f"{tot['triangulated']['median_pct']} % / PCK@10 {tot['triangulated']['pck10']} %   [{tot['points']} points]")
+    print(f"all cameras, hands: fit {tot['hands_fit']['median_pct']} % / PCK@5 {tot['hands_fit']['pck5']} % / PCK@10 "
+          f"{tot['hands_fit']['pck10']} %   vs   triangulated {tot['hands_triangulated']['median_pct']} % / PCK@5 "
+          f"{tot['hands_triangulated']['pck5']} % / PCK@10 {tot['hands_triangulated']['pck10']} %   "
+          f"[{tot['hand_points']} points]")
     print(f"total {time.perf_counter() - t0:.0f} s; load average after: {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
     if a.json:
         a.json.write_text(json.dumps({"cameras": rows, "all": tot}, indent=2))

@@ -23,12 +23,12 @@ def fresh_copy(src: Path, dst: Path):
     return Workspace(dst)
 
 
-def refit(ws, threads: int = 2, stages: int = 3) -> dict:
-    """Fit the workspace (default FitConfig) and compare the bodies with its ground truth."""
+def refit(ws, threads: int = 2, stages: int = 3, config=None) -> dict:
+    """Fit the workspace (``config``, default FitConfig()) and compare the bodies with its ground truth."""
     from mamma_kit.core.smplxfile import read_smplx_result
     from mamma_kit.evaluation.fit import evaluate_results
     from mamma_kit.fitting.stage import fit_workspace
     from mamma_kit.fitting.stages import FitConfig
 
-    fit_workspace(ws, stages=stages, config=FitConfig(), threads=threads, force=True)
+    fit_workspace(ws, stages=stages, config=config or FitConfig(), threads=threads, force=True)
     return evaluate_results(ws, [read_smplx_result(p) for p in ws.person_files()], penetration_frames=None)
