@@ -163,12 +163,22 @@ def naive_points(model, verts_vn3: np.ndarray, joints_j3: np.ndarray, vertex_ids
     return np.stack(cols, -2)
 
 
+def anchor_weights(V_s3: np.ndarray, anchor_3: np.ndarray, lam: float = 1e-3) -> np.ndarray:
+    """(S,) the non-negative weights, summing to 1, of the support vertices V_s3 whose combination is
+    nearest the anchor, mildly spread by a ridge toward equal weights (a point, not one vertex)."""
+    from scipy.optimize import lsq_linear
+
+    S = len(V_s3)
+    A = np.vstack([V_s3.T, 10.0 * np.ones((1, S)), np.sqrt(lam) * np.eye(S)])
+    b = np.r_[anchor_3, 10.0, np.full(S, np.sqrt(lam) / S)]
+    w = lsq_linear(A, b, bounds=(0, np.inf)).x
+    return w / w.sum()
+
+
 def initial_regressor(model, support: int = SUPPORT) -> KeypointRegressor:
     """Support and initial weights on ``model`` (see module doc): per point the ``support``
     vertices nearest its anchor (for a joint inside the body, spread around it: the 6 x
     support nearest thinned by farthest-point sampling), weighted to reproduce the anchor."""
-    from scipy.optimize import lsq_linear
-
     v = model.v_template.numpy().astype(np.float64)
     anchors = anchor_points(model)
     ids = np.zeros((N_POINTS, support), np.int64)
@@ -186,13 +196,7 @@ def initial_regressor(model, support: int = SUPPORT) -> KeypointRegressor:
             ids[k] = np.sort(pick)
         else:
             ids[k] = np.sort(np.argsort(d)[:support])
-        # nearest non-negative combination to the anchor, mildly spread (a point, not one vertex)
-        V = v[ids[k]]
-        lam = 1e-3
-        A = np.vstack([V.T, 10.0 * np.ones((1, support)), np.sqrt(lam) * np.eye(support)])
-        b = np.r_[a, 10.0, np.full(support, np.sqrt(lam) / support)]
-        w = lsq_linear(A, b, bounds=(0, np.inf)).x
-        W[k] = w / w.sum()
+        W[k] = anchor_weights(v[ids[k]], a)
     return KeypointRegressor(ids, W, np.full(N_POINTS, SIGMA_FRAC_DEFAULT), model.sha256, False,
                              {"made_by": "initial_regressor (anchors on the skeleton, not learned)"})
 
@@ -424,8 +428,6 @@ def hand_regressor(model, support: int = HAND_SUPPORT) -> KeypointRegressor:
     each anchor whose dominant skinning joint is the anchor's segment (so a point bends with its own
     finger, not a neighbour's). Not learned: the hand model is sure of too few rendered hands to
     learn from (benchmarks/hand_keypoints.py: 9-14 %), so the weights only reproduce the anchors."""
-    from scipy.optimize import lsq_linear
-
     v = model.v_template.numpy().astype(np.float64)
     dominant = model.weights_dense.numpy().argmax(1)
     extra = None if model.extra_joint_ids is None else dict(zip(sk.EXTRA_JOINT_NAMES, model.extra_joint_ids))
@@ -439,12 +441,7 @@ def hand_regressor(model, support: int = HAND_SUPPORT) -> KeypointRegressor:
             cand = np.arange(len(v))
         near = cand[np.argsort(np.linalg.norm(v[cand] - a, axis=1))[:support]]
         ids[k] = np.sort(near)
-        V = v[ids[k]]
-        lam = 1e-3
-        A = np.vstack([V.T, 10.0 * np.ones((1, support)), np.sqrt(lam) * np.eye(support)])
-        b = np.r_[a, 10.0, np.full(support, np.sqrt(lam) / support)]
-        w = lsq_linear(A, b, bounds=(0, np.inf)).x
-        W[k] = w / w.sum()
+        W[k] = anchor_weights(v[ids[k]], a)
     sig = np.array([HAND_SIGMA_FRAC[0] if name.endswith("_wrist") else HAND_SIGMA_FRAC[1] for _, name in anchors])
     return KeypointRegressor(ids, W, sig, model.sha256, False,
                              {"made_by": "hand_regressor (anchors on the hand's joints and fingertips, not learned)"})
