@@ -59,18 +59,20 @@ class PointSet:
     """Observed points beside the landmarks: kin a BodyKinematics of regressed points,
     obs (xy, sigma (C, P, T, K, 2), w (C, P, T, K)); weight (K,) multiplies w (e.g. stage 1:
     the rigid points only); groups ((name, count), ...) names consecutive points for the
-    energy report (default: all of them "keypoints")."""
+    energy report (default: all of them "keypoints"); gamma_scale (K,) multiplies the robust
+    scale per point (default 1: the landmarks' gamma)."""
 
     kin: BodyKinematics
     obs: Obs
     weight: torch.Tensor | None = None
     groups: tuple[tuple[str, int], ...] | None = None
+    gamma_scale: torch.Tensor | None = None
 
     def frames(self, s) -> "PointSet":
-        return PointSet(self.kin, self.obs.frames(s), self.weight, self.groups)
+        return PointSet(self.kin, self.obs.frames(s), self.weight, self.groups, self.gamma_scale)
 
     def with_weight(self, weight: torch.Tensor | None) -> "PointSet":
-        return PointSet(self.kin, self.obs, weight, self.groups)
+        return PointSet(self.kin, self.obs, weight, self.groups, self.gamma_scale)
 
 
 @dataclass
@@ -226,6 +228,7 @@ class GaussNewton:
                 pw = pw * points.weight.to(CDTYPE)
             self.p_w, self.p_xy = pw, points.obs.xy.to(CDTYPE)
             self.p_inv_sigma = (1.0 / points.obs.sigma).to(CDTYPE)
+            self.p_gamma_scale = 1.0 if points.gamma_scale is None else points.gamma_scale.to(CDTYPE)
             self.p_gamma0 = self._gamma_start(cfg, points.obs)
             self.p_groups, n_p = points.kin.groups(cfg.active)
             assert n_p == self.n
@@ -269,7 +272,7 @@ class GaussNewton:
 
     def point_terms(self, fp: Posed, gamma: float | torch.Tensor, jac: bool):
         """The keypoint term of ``point_forward``'s points; as data_terms."""
-        return reprojection_terms(self.cams, self.p_xy, self.p_inv_sigma, self.p_w, fp.v, gamma, jac)
+        return reprojection_terms(self.cams, self.p_xy, self.p_inv_sigma, self.p_w, fp.v, gamma * self.p_gamma_scale, jac)
 
     def prior_terms(self, rot: torch.Tensor, G: torch.Tensor | None = None):
         """Pose prior energy (P, T) [and its normal-equation diagonal blocks, rhs]."""
@@ -343,10 +346,11 @@ class GaussNewton:
         if self.points is not None:
             v = self.point_forward(f, st).v
             start = 0
+            gs = torch.as_tensor(self.p_gamma_scale, dtype=CDTYPE).expand(v.shape[2]) * g
             for name, n in self.points.groups or (("keypoints", v.shape[2]),):
                 sl = slice(start, start + n)
                 out[name] = float(reprojection_terms(self.cams, self.p_xy[..., sl, :], self.p_inv_sigma[..., sl, :],
-                                                     self.p_w[..., sl], v[:, :, sl], g, jac=False).sum())
+                                                     self.p_w[..., sl], v[:, :, sl], gs[sl], jac=False).sum())
                 start += n
         out |= {"pose_prior": float(self.prior_terms(st.rot).sum()),
                 "shape_prior": float(self.cfg.shape_weight * (st.betas ** 2).sum()) if self.cfg.optimize_betas else 0.0}

@@ -137,7 +137,7 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         "chunks": result.chunks,
         "stage_stats": {k: v.to_dict() for k, v in result.stats.items()},
         "reprojection_px": reprojection_report(model, data, result),
-        "keypoints": ({"used": True, "weight": cfg.keypoint_weight,
+        "keypoints": ({"used": True, "weight": cfg.keypoint_weight, "robust_scale_sigmas": cfg.keypoint_gamma,
                        "regressor_learned": fitter.body_regressor.learned,
                        "reprojection_px": keypoint_report(model, data, result, fitter.body_regressor)}
                       if fitter.kp is not None else
