@@ -40,6 +40,7 @@ from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_npz, write_npz
 
 N_HAND_POINTS = 21  # MediaPipe's hand landmarks per hand (keypoints/hands.py)
+HAND_SURE_FLAG = 0.5  # the hand model's flag above which it saw a hand in its ROI
 
 
 def nearest_frames(times_a: np.ndarray, times_b: np.ndarray, tol: float | None = None) -> np.ndarray:

@@ -20,7 +20,7 @@ none), kp_size (C, P, T) px the person's size in the view (the larger side of th
 its 33 points: the scale of BlazePose's error). None when no selected camera has
 keypoints; cameras without a file have kp_vis 0 (both said in notes). The hands read with them
 (keypoints/hands.py), left then right, 21 points each: hand_xy (C, P, T, 42, 2) px, hand_vis
-(C, P, T, 42) the hand model's flag where it is sure of the hand (> MIN_HAND_FLAG), else 0. Its
+(C, P, T, 42) the hand model's flag where it is sure of the hand (> HAND_SURE_FLAG), else 0. Its
 handedness is not used: on the real recording in shared/real/, hands whose handedness disagrees with
 BlazePose's side are 3 times as often > 10 % of the box height off the other views, but dropping
 them (a ramp from 0.2 to 0.8 agreement) made the held-out hands worse (benchmarks/heldout_view.py:
@@ -40,10 +40,9 @@ from mamma_kit.core.calibfile import read_calibration
 from mamma_kit.core.camera import Rig
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
-from mamma_kit.core.tracks import LandmarkTracks
+from mamma_kit.core.tracks import HAND_SURE_FLAG, LandmarkTracks
 from mamma_kit.core.workspace import Workspace
 
-MIN_HAND_FLAG = 0.5  # keypoints.hands.MIN_PRESENCE: below it the hand model saw no hand
 NEAR_FRAC = 0.25  # use a lone neighbouring frame when within this fraction of a frame interval
 MIN_SIGMA = 0.25  # px: the fit divides by sigma
 
@@ -75,6 +74,7 @@ class FitData:
     @property
     def has_hands(self) -> bool:
         return self.hand_vis is not None and bool((self.hand_vis > 0).any())
+
     @property
     def has_keypoints(self) -> bool:
         return self.kp_vis is not None and bool((self.kp_vis > 0).any())
@@ -234,7 +234,7 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
             # an unsure frame counts as a flag of -1 in the mix: a hand between a sure and an unsure
             # frame keeps a weight only when it is mostly the sure one's
             h_xy = mix(kt.hand_xy).reshape(-1, 42, 2)
-            flag = mix(np.where(kt.hand_presence > MIN_HAND_FLAG, kt.hand_presence, -1.0))  # (n, 2)
+            flag = mix(np.where(kt.hand_presence > HAND_SURE_FLAG, kt.hand_presence, -1.0))  # (n, 2)
             hv = np.repeat(np.clip(flag, 0, 1), 21, axis=-1)
             hv[~np.isfinite(h_xy).all(-1)] = 0.0
             hand_xy[ci, pi, take] = np.nan_to_num(h_xy)

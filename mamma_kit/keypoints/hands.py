@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mamma_kit.core.tracks import HAND_SURE_FLAG
 from mamma_kit.keypoints import blazepose as bp
 from mamma_kit.keypoints.runtime import TfliteModel
 
@@ -32,7 +33,7 @@ HAND_POINTS = {0: (15, 17, 19), 1: (16, 18, 20)}
 # 1.72 / 1.76 % of the box height where the model was sure of the hand)
 CENTRE_ALONG = 0.9
 SIDE_LENGTHS = 2.8
-MIN_PRESENCE = 0.5  # the model's hand flag below this: no hand in the ROI
+MIN_PRESENCE = HAND_SURE_FLAG  # the model's hand flag below this: no hand in the ROI
 #: bones between the 21 points: each finger's chain from the wrist, and across the knuckles
 HAND_SKELETON = tuple((a, a + 1) for f in range(5) for a in range(4 * f + 1, 4 * f + 4)) + \
     ((0, 1), (0, 5), (0, 17), (5, 9), (9, 13), (13, 17))
