@@ -400,8 +400,6 @@ HAND_ANCHORS = tuple(
         a for f in _FINGERS for a in ((("joint", f"{side}_{f}1"), ("joint", f"{side}_{f}2"),
                                        ("joint", f"{side}_{f}3"), ("vertex", f"{side}_{f}_tip"))))
     for side in ("left", "right"))
-HAND_POINT_NAMES = tuple(f"{name}" for side in HAND_ANCHORS for _, name in side)
-N_HAND_POINTS = 2 * 21
 HAND_SUPPORT = 16  # vertices per hand point, all on the point's own finger segment (or palm)
 # fraction of the person's box height: MediaPipe's points on the demo's hands where the model was sure
 # (benchmarks/hand_keypoints.py: wrist 0.85 %, finger joints 1.62 % median; x 1.4826 / 1.18 for a
@@ -409,12 +407,11 @@ HAND_SUPPORT = 16  # vertices per hand point, all on the point's own finger segm
 HAND_SIGMA_FRAC = (0.012, 0.02)  # wrist, other points
 
 
-def _hand_anchor(model, kind: str, name: str, extra: dict | None) -> tuple[np.ndarray, list[int]]:
-    """(3,) rest position of a hand point and the joints whose vertices may carry it: a joint on
-    its own segment and its parent's (the skin around it); a fingertip on the last segment."""
-    v = model.v_template.numpy().astype(np.float64)
-    J = model.J_template.numpy().astype(np.float64)
-    parents = model.parents.numpy()
+def _hand_anchor(v: np.ndarray, J: np.ndarray, parents: np.ndarray, kind: str, name: str,
+                 extra: dict | None) -> tuple[np.ndarray, list[int]]:
+    """(3,) rest position of a hand point (rest vertices v (V, 3), joints J (55, 3)) and the joints
+    whose vertices may carry it: a joint on its own segment and its parent's (the skin around it); a
+    fingertip on the last segment."""
     if kind == "vertex":
         last = sk.JOINT_NAMES.index(name.replace("_tip", "3"))
         pos = v[extra[name]] if extra is not None else J[last]
@@ -429,13 +426,15 @@ def hand_regressor(model, support: int = HAND_SUPPORT) -> KeypointRegressor:
     finger, not a neighbour's). Not learned: the hand model is sure of too few rendered hands to
     learn from (benchmarks/hand_keypoints.py: 9-14 %), so the weights only reproduce the anchors."""
     v = model.v_template.numpy().astype(np.float64)
+    J = model.J_template.numpy().astype(np.float64)
+    parents = model.parents.numpy()
     dominant = model.weights_dense.numpy().argmax(1)
     extra = None if model.extra_joint_ids is None else dict(zip(sk.EXTRA_JOINT_NAMES, model.extra_joint_ids))
     anchors = [a for side in HAND_ANCHORS for a in side]
     ids = np.zeros((len(anchors), support), np.int64)
     W = np.zeros((len(anchors), support))
     for k, (kind, name) in enumerate(anchors):
-        a, joints = _hand_anchor(model, kind, name, extra)
+        a, joints = _hand_anchor(v, J, parents, kind, name, extra)
         cand = np.flatnonzero(np.isin(dominant, joints))
         if len(cand) < support:  # a coarse body: fall back to the nearest vertices
             cand = np.arange(len(v))

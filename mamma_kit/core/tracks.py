@@ -270,10 +270,6 @@ class KeypointTracks:
                    np.full((T, K, P), np.nan, np.float32), np.zeros((T, K, P), np.float32),
                    np.zeros((T, K, P), np.float32), np.zeros((T, K), np.float32), model)
 
-    @property
-    def has_hands(self) -> bool:
-        return bool((self.hand_presence > 0).any())
-
     def save(self, path: str | Path) -> Path:
         return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
                          frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,

@@ -40,7 +40,7 @@ from mamma_kit.core.calibfile import read_calibration
 from mamma_kit.core.camera import Rig
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
-from mamma_kit.core.tracks import HAND_SURE_FLAG, LandmarkTracks
+from mamma_kit.core.tracks import HAND_SURE_FLAG, N_HAND_POINTS, LandmarkTracks
 from mamma_kit.core.workspace import Workspace
 
 NEAR_FRAC = 0.25  # use a lone neighbouring frame when within this fraction of a frame interval
@@ -203,8 +203,9 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
     kp_xy = np.zeros((C, P, T, 33, 2), np.float32)
     kp_vis = np.zeros((C, P, T, 33), np.float32)
     kp_size = np.zeros((C, P, T), np.float32)
-    hand_xy = np.zeros((C, P, T, 42, 2), np.float32)
-    hand_vis = np.zeros((C, P, T, 42), np.float32)
+    H = 2 * N_HAND_POINTS  # left hand, then right
+    hand_xy = np.zeros((C, P, T, H, 2), np.float32)
+    hand_vis = np.zeros((C, P, T, H), np.float32)
     taken = np.zeros((C, P, T), bool)
     for ci, n in enumerate(names):
         if n not in have:
@@ -233,9 +234,9 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
             taken[ci, pi, take] = True
             # an unsure frame counts as a flag of -1 in the mix: a hand between a sure and an unsure
             # frame keeps a weight only when it is mostly the sure one's
-            h_xy = mix(kt.hand_xy).reshape(-1, 42, 2)
+            h_xy = mix(kt.hand_xy).reshape(-1, H, 2)
             flag = mix(np.where(kt.hand_presence > HAND_SURE_FLAG, kt.hand_presence, -1.0))  # (n, 2)
-            hv = np.repeat(np.clip(flag, 0, 1), 21, axis=-1)
+            hv = np.repeat(np.clip(flag, 0, 1), N_HAND_POINTS, axis=-1)
             hv[~np.isfinite(h_xy).all(-1)] = 0.0
             hand_xy[ci, pi, take] = np.nan_to_num(h_xy)
             hand_vis[ci, pi, take] = hv

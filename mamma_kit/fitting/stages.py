@@ -331,7 +331,7 @@ class Fitter:
         if self.kp is None:
             return None
         sig = torch.as_tensor(self.keypoint_sigma(d))
-        groups = (("keypoints", d.kp_vis.shape[-1]), ("hand_keypoints", 42)) if self.hands else None
+        groups = (("keypoints", d.kp_vis.shape[-1]), ("hand_keypoints", d.hand_vis.shape[-1])) if self.hands else None
         scale = torch.ones(self.regressor.n_points)
         scale[:d.kp_vis.shape[-1]] = self.cfg.keypoint_gamma / self.cfg.gamma
         return PointSet(self.kin_kp, Obs(torch.as_tensor(self.point_xy(d)),

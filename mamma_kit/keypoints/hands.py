@@ -19,13 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mamma_kit.core.tracks import HAND_SURE_FLAG
+from mamma_kit.core.tracks import HAND_SURE_FLAG, N_HAND_POINTS
 from mamma_kit.keypoints import blazepose as bp
 from mamma_kit.keypoints.runtime import TfliteModel
 
 HAND_LANDMARKER = "hand_landmark_full.tflite"
 HAND_SIZE = 224
-N_HAND_POINTS = 21
 # BlazePose's (wrist, pinky, index) of the left and right hand
 HAND_POINTS = {0: (15, 17, 19), 1: (16, 18, 20)}
 # the ROI: centred this far from the wrist towards the knuckles' midpoint, its side this many wrist
