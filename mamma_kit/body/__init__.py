@@ -26,7 +26,7 @@ _EXPORTS = {
 }
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
-__all__ = ["kp_regressor", "landmarks", "lbs", "model", "proxy", "skeleton"]
+__all__ = ["kp_regressor", "landmarks", "lbs", "model", "proxy", "rest_pose", "skeleton"]
 
 
 def __getattr__(name: str):

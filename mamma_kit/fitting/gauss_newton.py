@@ -7,7 +7,8 @@ frames. The energy is the paper's robust reprojection term
     E = sum_{c,l} p_cl rho(|(mu_cl - Pi_c(V_l)) / sigma_cl|^2),  rho(s2) = g^2 s2 / (s2 + g^2)
 
 (Geman-McClure, quadratic = Gaussian for small residuals, bounded by g^2 for outliers) plus
-a light pose prior |theta_j|^2 / s_j^2 on local rotations and the L2 shape prior |beta|^2.
+a light pose prior |log(R0_j^T R_j)|^2 / s_j^2 on local rotations (R0: the prior's mean pose,
+the rest pose unless given) and the L2 shape prior |beta|^2.
 Each iteration linearises (IRLS weights for rho), builds every block's normal matrix from
 per-part dense Jacobians (a landmark only moves with the joints on its chain), eliminates
 the shared shape by its Schur complement, and accepts each block's step only if the block's
@@ -102,6 +103,7 @@ class GNConfig:
     optimize_betas: bool = False
     shape_weight: float = 1.0
     prior_sigma: np.ndarray | None = None  # (NUM_JOINTS,) rad; inf = no prior
+    prior_mean: np.ndarray | None = None  # (NUM_JOINTS, 3) axis-angle the prior pulls towards; None = rest
     landmark_weight: torch.Tensor | None = None  # (L,) multiplies visibility (stage 1: rigid parts)
     tol: float = 1e-5
     # past `iterations`, go on (at gamma_end) while some block's energy still falls by more
@@ -234,6 +236,9 @@ class GaussNewton:
             assert n_p == self.n
         ps = np.full(NUM_JOINTS, np.inf) if cfg.prior_sigma is None else np.asarray(cfg.prior_sigma, float)
         self.prior_w = torch.as_tensor(1.0 / ps[list(cfg.active)] ** 2, dtype=DTYPE)  # (A,)
+        mean_j3 = np.zeros((NUM_JOINTS, 3)) if cfg.prior_mean is None else np.asarray(cfg.prior_mean, float)
+        # (A, 3, 3) the transposed mean rotation of each active joint
+        self.prior_R0T = so3_exp(torch.as_tensor(mean_j3[list(cfg.active)], dtype=DTYPE)).transpose(-1, -2)
         # each active joint's parent as an index into the world rotations with the identity
         # appended at index kin.J (the root's parent)
         par = np.asarray(kin.parents)[self.act.numpy()]
@@ -275,14 +280,16 @@ class GaussNewton:
         return reprojection_terms(self.cams, self.p_xy, self.p_inv_sigma, self.p_w, fp.v, gamma * self.p_gamma_scale, jac)
 
     def prior_terms(self, rot: torch.Tensor, G: torch.Tensor | None = None):
-        """Pose prior energy (P, T) [and its normal-equation diagonal blocks, rhs]."""
-        th = so3_log(rot[:, :, self.act].to(DTYPE))  # (P, T, A, 3)
+        """Pose prior energy (P, T) [and its normal-equation diagonal blocks, rhs]; the residual
+        th = log(R0^T R) of each active joint's local rotation R from the prior's mean R0."""
+        th = so3_log(self.prior_R0T @ rot[:, :, self.act].to(DTYPE))  # (P, T, A, 3)
         E = ((th * th).sum(-1) * self.prior_w).sum(-1)
         if G is None:
             return E
         eye = torch.eye(3, dtype=DTYPE).expand(*G.shape[:2], 1, 3, 3)
         Gpar = torch.cat([G.to(DTYPE), eye], 2)[:, :, self.parent_slot]  # (P, T, A, 3, 3)
-        Jr = so3_left_jacobian_inv(th) @ Gpar.transpose(-1, -2)  # d theta / d eps (P, T, A, 3, 3)
+        # a world step eps turns R into exp(Gpar^T eps) R, so th into about th + Jl^-1(th) R0^T Gpar^T eps
+        Jr = so3_left_jacobian_inv(th) @ self.prior_R0T @ Gpar.transpose(-1, -2)  # d theta / d eps (P, T, A, 3, 3)
         pw = self.prior_w[:, None, None]
         Nd = pw * (Jr.transpose(-1, -2) @ Jr)
         rhs = -(pw[..., 0] * (Jr.transpose(-1, -2) @ th[..., None])[..., 0])

@@ -21,11 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mamma_kit.body.rest_pose import arm_rest_rotations
 from mamma_kit.core import log
 from mamma_kit.core.camera import Camera
 from mamma_kit.core.io import write_json, write_npz
 from mamma_kit.synth.appearance import person_colors
-from mamma_kit.synth.motion import (MotionClip, arm_rest_rotations, euler_to_params, generate_motion,
+from mamma_kit.synth.motion import (MotionClip, euler_to_params, generate_motion,
                                     LIMITS, N_JOINTS, L_HAND, R_HAND)
 from mamma_kit.synth.render import CameraRenderer, Environment, PersonMesh, PeopleScene
 from mamma_kit.synth.rig import look_at_rotation

@@ -135,20 +135,6 @@ def _clamp(euler: np.ndarray) -> np.ndarray:
     return np.clip(out, lo, hi)
 
 
-def arm_rest_rotations(J_template_j3: np.ndarray) -> dict[str, Rotation]:
-    """Rotations Q that lift each arm of a model's rest pose into a T-pose (shoulder->wrist
-    along +-X). The library's arm angles are T-pose relative (like SMPL-X's rest pose);
-    models whose rest pose is an A-pose (the open body) need them re-expressed."""
-    out = {}
-    for side, (s, w), target in (("left", (16, 20), [1.0, 0, 0]), ("right", (17, 21), [-1.0, 0, 0])):
-        d = J_template_j3[w] - J_template_j3[s]
-        d = d / np.linalg.norm(d)
-        axis = np.cross(d, target)
-        ang = np.arccos(np.clip(d @ np.asarray(target), -1, 1))
-        out[side] = Rotation.from_rotvec(axis / max(np.linalg.norm(axis), 1e-12) * ang)
-    return out
-
-
 _ARM_CHAIN = {"left": (L_SHOULDER, [L_ELBOW, L_WRIST] + L_HAND), "right": (R_SHOULDER, [R_ELBOW, R_WRIST] + R_HAND)}
 
 
@@ -156,7 +142,7 @@ def euler_to_params(track: PersonTrack, arm_rest: dict[str, Rotation] | None = N
     """Per-joint Euler angles + root placement -> SMPL-X parameter arrays (N, D), transl
     holding the pelvis xy (the floor height is fixed later, with the body model).
 
-    ``arm_rest`` (from :func:`arm_rest_rotations`) re-expresses T-pose-relative arm angles
+    ``arm_rest`` (from ``body.rest_pose.arm_rest_rotations``) re-expresses T-pose-relative arm angles
     for a model with another rest pose: shoulder R Q, every joint below it Q^-1 R Q."""
     e = _clamp(track.euler)
     N = e.shape[0]

@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mamma_kit.body.rest_pose import arm_rest_rotations
 from mamma_kit.core import log
 from mamma_kit.core.manifest import producer
 from mamma_kit.core.timecode import frames_to_timecode
 from mamma_kit.core.tracks import LandmarkTracks, MaskTracks
 from mamma_kit.synth.appearance import person_colors
-from mamma_kit.synth.motion import MotionClip, arm_rest_rotations, euler_to_params, generate_motion
+from mamma_kit.synth.motion import MotionClip, euler_to_params, generate_motion
 from mamma_kit.synth.recipe import Recipe
 from mamma_kit.synth.render import CameraRenderer, Environment, PersonMesh, flash_rows
 from mamma_kit.synth.rig import SynthCamera
