@@ -77,7 +77,8 @@ def test_network_inference_streams_the_video(ws, cli):
         for p in model.parameters():
             p.add_(0.05 * torch.randn_like(p))
     save_weights(ws / "tiny.pt", model, "toy-16")
-    res = cli("landmarks", ws, "--weights", ws / "tiny.pt", "--batch", "3", "--json", "--quiet")
+    raw = ("--smooth-s", "0")  # the network's own numbers (no smoothing of contact and visibility)
+    res = cli("landmarks", ws, "--weights", ws / "tiny.pt", "--batch", "3", *raw, "--json", "--quiet")
     assert res.code == 0, res
     summary = json.loads(res.out)
     assert summary["arch"] == "tiny" and summary["cameras"][0]["crops"] == 9
@@ -95,8 +96,18 @@ def test_network_inference_streams_the_video(ws, cli):
         assert np.allclose(lt.visibility[t, ks], ref["visibility"], atol=1e-5)
     assert np.isnan(lt.xy[2, 1]).all() and not lt.valid[2, 1]
     assert "landmarks" in lt.producer["command"]
-    again = cli("landmarks", ws, "--weights", ws / "tiny.pt", "--json", "--quiet")
+    again = cli("landmarks", ws, "--weights", ws / "tiny.pt", *raw, "--json", "--quiet")
     assert json.loads(again.out)["skipped"] is True
+    # by default the contact and visibility are smoothed over time (landmarks/smooth.py): a changed
+    # setting, so it recomputes; positions and sigma stay the network's
+    smoothed = cli("landmarks", ws, "--weights", ws / "tiny.pt", "--json", "--quiet")
+    assert json.loads(smoothed.out)["skipped"] is False
+    from mamma_kit.landmarks.smooth import SMOOTH_S, smooth_landmarks
+
+    lt_s = LandmarkTracks.load(ws / "landmarks" / "cam0.npz")
+    want = smooth_landmarks(lt, SMOOTH_S)
+    assert np.allclose(lt_s.visibility, want.visibility, atol=1e-6) and np.allclose(lt_s.contact, want.contact, atol=1e-6)
+    assert np.allclose(lt_s.xy, lt.xy, atol=1e-3, equal_nan=True) and not np.allclose(lt_s.visibility, lt.visibility)
     forced = cli("landmarks", ws, "--weights", ws / "tiny.pt", "--force", "--json", "--quiet")
     assert json.loads(forced.out)["skipped"] is False
 

@@ -33,6 +33,9 @@ def landmarks_cmd(
     hands: str = typer.Option("auto", "--hands", help="Hand refinement (a second network reads each hand at the "
                                                        "frame's resolution): auto (the shipped one where it fits "
                                                        "the model), off, or a hand weights .pt."),
+    smooth_s: Optional[float] = typer.Option(None, "--smooth-s", min=0.0, help="The network's contact and "
+                                             "visibility smoothed over this many seconds of each track (contact "
+                                             "also over its nearest landmarks); default 0.1, 0 = off."),
     describe: bool = typer.Option(False, "--describe", help="Print the architecture's state-dict names and shapes."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
     unit_frames: Optional[int] = typer.Option(None, "--unit-frames", min=0, help="Frames per unit of work "
@@ -77,6 +80,6 @@ def landmarks_cmd(
         raise UserError("no WORKSPACE given", "run `mamma-kit landmarks WORKSPACE` (or --describe to list the weights)")
     res = run_landmarks(Workspace(workspace), source=source, batch=batch, device=device, cameras=cameras, noise=noise,
                         outliers=outliers, seed=seed, force=force, loaded=loaded,
-                        unit_frames=unit_frames, hands=hands)
+                        unit_frames=unit_frames, hands=hands, smooth_s=smooth_s)
     if json_out:
         emit_json(res)

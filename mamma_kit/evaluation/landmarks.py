@@ -18,9 +18,10 @@ from mamma_kit.landmarks.gt import gt_box_heights, gt_landmarks_file, gt_masks_f
 from mamma_kit.landmarks.metrics import landmark_metrics
 
 
-def landmark_pairs(ws: Workspace, cam: str) -> tuple[dict, str] | None:
-    """Matched (prediction, ground truth) arrays of one camera, flattened over instances."""
-    pred = LandmarkTracks.load(ws.landmarks_file(cam))
+def landmark_pairs(ws: Workspace, cam: str, pred: LandmarkTracks | None = None) -> tuple[dict, str] | None:
+    """Matched (prediction, ground truth) arrays of one camera, flattened over instances; the
+    prediction is landmarks/<cam>.npz unless given."""
+    pred = LandmarkTracks.load(ws.landmarks_file(cam)) if pred is None else pred
     gt = LandmarkTracks.load(gt_landmarks_file(ws, cam))
     if pred.n_landmarks != gt.n_landmarks:
         return None
@@ -57,7 +58,9 @@ def landmark_pairs(ws: Workspace, cam: str) -> tuple[dict, str] | None:
     return d, how
 
 
-def evaluate(ws: Workspace) -> dict | None:
+def evaluate(ws: Workspace, preds: dict[str, LandmarkTracks] | None = None) -> dict | None:
+    """The landmark group of `mamma-kit eval` (module doc); ``preds`` per camera in place of
+    landmarks/<cam>.npz (benchmarks that try a change in memory)."""
     if not ws.landmarks_dir.is_dir() or not (ws.gt_dir / "landmarks").is_dir():
         return None
     cams = sorted(p.stem for p in ws.landmarks_dir.glob("*.npz") if gt_landmarks_file(ws, p.stem).is_file())
@@ -65,7 +68,7 @@ def evaluate(ws: Workspace) -> dict | None:
         return None
     parts, per_cam = [], {}
     for cam in cams:
-        res = landmark_pairs(ws, cam)
+        res = landmark_pairs(ws, cam, (preds or {}).get(cam))
         if res is None:
             per_cam[cam] = {"matched": False, "reason": "other landmark count than the ground truth, or track ids "
                                                         "neither gt ids nor matchable by masks"}

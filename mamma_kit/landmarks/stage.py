@@ -36,12 +36,14 @@ def _camera_names(ws, only, fallback_dir: Path | None = None) -> list[str]:
 def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None, arch: str | None = None,
                   batch: int = 8, device: str = "cpu", cameras: list[str] | str | None = None, noise: str = "0",
                   outliers: float = 0.0, seed: int = 0, force: bool = False, loaded=None,
-                  unit_frames: int | None = None, hands: str | Path | None = "auto") -> dict:
+                  unit_frames: int | None = None, hands: str | Path | None = "auto",
+                  smooth_s: float | None = None) -> dict:
     """Landmarks for every tracked person of every camera (see the module docstring).
     ``loaded``: an already loaded model (mamma_kit.landmarks.weights.load_model). ``unit_frames``:
     frames per unit of work (0: a camera per unit; None: MAMMA_KIT_UNIT_FRAMES). ``hands``: the hand
     refinement (landmarks/hands.py): "auto" (the shipped HandNet where it fits the model), "off" or
-    a weights path."""
+    a weights path. ``smooth_s``: the network's contact and visibility smoothed over this many
+    seconds (landmarks/smooth.py; None: SMOOTH_S, 0: off)."""
     if source not in ("net", "gt"):
         raise UserError(f"--source '{source}' is unknown", "use --source net or --source gt")
     if source == "net" and loaded is None:
@@ -77,8 +79,11 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
         from mamma_kit.landmarks.hands import hand_refiner
 
         refiner = hand_refiner(loaded.landmark_set, hands)
+        from mamma_kit.landmarks.smooth import SMOOTH_S
+
         settings = {"source": "net", "arch": loaded.config.name, "weights": loaded.source,
-                    "hands": refiner.loaded.source if refiner else "off"}
+                    "hands": refiner.loaded.source if refiner else "off",
+                    "smooth_s": float(SMOOTH_S if smooth_s is None else smooth_s)}
         if refiner:  # the hand network reads the keypoints too, where there are any
             for c in cams:
                 unit_inputs[c].append(Path(refiner.loaded.source))
@@ -173,7 +178,13 @@ def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, sourc
 
 
 def _write_camera(ws, cam: str, lt, summ: dict, settings: dict, unit_inputs: dict, seconds: float) -> dict:
-    """landmarks/<cam>.npz and its manifest, from the camera's landmarks (``seconds``: computing them)."""
+    """landmarks/<cam>.npz and its manifest, from the camera's landmarks (``seconds``: computing them);
+    the network's contact and visibility smoothed first (the whole camera's tracks: here, after any
+    frame ranges are joined)."""
+    if settings.get("smooth_s", 0) > 0:
+        from mamma_kit.landmarks.smooth import smooth_landmarks
+
+        lt = smooth_landmarks(lt, settings["smooth_s"])
     manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
     inputs, out = unit_inputs[cam], ws.landmarks_file(cam)
     tc = time.perf_counter()
