@@ -22,6 +22,7 @@ Stage options come from capture.toml, e.g.::
                            hands = false   (each person's hands read by the hand model too; default true)
     [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8  hands = "off"   (source = "gt" on synthetic data)
                            smooth_s = 0   (contact and visibility smoothing over time, s; default 0.1)
+                           contact = "off"   (the body network's own contact head; default "auto": the single-query network's)
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
                            hand_points = false   (the hand model's points in the fit; default true)
@@ -49,7 +50,7 @@ KNOWN = {
     "track": {"backend", "sam2_checkpoint", "sam2_config", "chunk", "device", "prompts", "pictures", "people"},
     "keypoints": {"blank", "threads", "pictures", "resplit", "hands"},
     "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads", "hands",
-                  "smooth_s"},
+                  "smooth_s", "contact"},
     "match": {"lam", "max_distance", "min_affinity", "plots"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model", "hand_points"},
     "report": {"video"},
@@ -178,7 +179,8 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
                             batch=int(opts.get("batch", 8)), device=opts.get("device", "cpu"),
                             noise=str(opts.get("noise", "0")), outliers=float(opts.get("outliers", 0.0)),
                             seed=int(opts.get("seed", 0)), force=force, unit_frames=opts.get("unit_frames"),
-                            hands=opts.get("hands", "auto"), smooth_s=opts.get("smooth_s"))
+                            hands=opts.get("hands", "auto"), smooth_s=opts.get("smooth_s"),
+                            contact=opts.get("contact", "auto"))
     elif stage == "match":
         from mamma_kit.matching.stage import run_match
 

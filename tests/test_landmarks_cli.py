@@ -208,3 +208,20 @@ def test_mask_areas_from_runs(ws):
     areas = mask_areas(mt)
     assert areas.tolist() == [[mt.area(t, k) for k in range(2)] for t in range(3)]
     assert mask_areas(masks)[0].tolist() == [40 * 90, 40 * 90]
+
+
+def test_the_contact_head_comes_from_the_single_query_network_under_a_keypoint_guided_one():
+    """"auto": the shipped single-query network's contact head under the keypoint-guided model (it
+    reads contact better), none under an image-only model; "off" none; a keypoint-guided network
+    offered as the contact network is a user error."""
+    from mamma_kit.core.errors import UserError
+    from mamma_kit.landmarks.stage import EMBEDDED_CONTACT, contact_network
+    from mamma_kit.landmarks.weights import EMBEDDED_DIR, load_model
+
+    kp = load_model(EMBEDDED_DIR / "embedded-kp.pt")
+    chosen = contact_network(kp, "auto")
+    assert chosen is not None and chosen.source.endswith(EMBEDDED_CONTACT) and chosen.config.keypoints_in == 0
+    assert contact_network(kp, "off") is None
+    assert contact_network(load_model(EMBEDDED_DIR / "embedded.pt"), "auto") is None
+    with pytest.raises(UserError, match="image-only"):
+        contact_network(kp, EMBEDDED_DIR / "embedded-kp.pt")

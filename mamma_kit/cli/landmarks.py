@@ -36,6 +36,10 @@ def landmarks_cmd(
     smooth_s: Optional[float] = typer.Option(None, "--smooth-s", min=0.0, help="The network's contact and "
                                              "visibility smoothed over this many seconds of each track (contact "
                                              "also over its nearest landmarks); default 0.1, 0 = off."),
+    contact: str = typer.Option("auto", "--contact", help="Whose person-contact head: auto (the shipped "
+                                                           "single-query network's, which reads contact better, "
+                                                           "under a keypoint-guided model), off (the model's own), "
+                                                           "or an image-only weights .pt."),
     describe: bool = typer.Option(False, "--describe", help="Print the architecture's state-dict names and shapes."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
     unit_frames: Optional[int] = typer.Option(None, "--unit-frames", min=0, help="Frames per unit of work "
@@ -80,6 +84,6 @@ def landmarks_cmd(
         raise UserError("no WORKSPACE given", "run `mamma-kit landmarks WORKSPACE` (or --describe to list the weights)")
     res = run_landmarks(Workspace(workspace), source=source, batch=batch, device=device, cameras=cameras, noise=noise,
                         outliers=outliers, seed=seed, force=force, loaded=loaded,
-                        unit_frames=unit_frames, hands=hands, smooth_s=smooth_s)
+                        unit_frames=unit_frames, hands=hands, smooth_s=smooth_s, contact=contact)
     if json_out:
         emit_json(res)

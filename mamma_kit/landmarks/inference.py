@@ -182,10 +182,12 @@ class _Job:
     box: np.ndarray
     extra: dict
     hand: dict | None = None  # the frame, full masks and keypoints, for the hand refinement
+    contact_crop: tuple | None = None  # (image, mask, box) cropped for the contact network
 
 
 def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, np.ndarray]],
-               todo: np.ndarray, keypoints: KeypointTracks | None, hands: bool = False) -> Iterator[_Job]:
+               todo: np.ndarray, keypoints: KeypointTracks | None, hands: bool = False,
+               contact: Predictor | None = None) -> Iterator[_Job]:
     boxes = C.tight_box_from_track_box(masks.boxes)
     guided = pred.needs_keypoints
     for t, img in frames:
@@ -208,15 +210,17 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
                     extra = pred.crop_inputs(img, res[2], points, others)
                 if hands:
                     hand = {"image": img, "mask": m, "tight_box": tb, "keypoints": points, "others": others}
-            yield _Job(int(t), int(k), res[0], res[1], res[2], extra, hand)
+            yield _Job(int(t), int(k), res[0], res[1], res[2], extra, hand,
+                       contact.crop(img, m, tb) if contact is not None else None)
 
 
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
                min_area: int = MIN_MASK_AREA, producer: dict | None = None,
                keypoints: KeypointTracks | None = None, frame_range: tuple[int, int] | None = None,
-               hands=None) -> tuple[LandmarkTracks, dict]:
+               hands=None, contact: Predictor | None = None) -> tuple[LandmarkTracks, dict]:
     """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video.
-    ``hands``: a hands.HandRefiner that re-reads each hand at the frame's resolution.
+    ``hands``: a hands.HandRefiner that re-reads each hand at the frame's resolution. ``contact``: a
+    second network (its own crops) whose person-contact head replaces ``pred``'s.
     ``keypoints``: the camera's keypoints/<cam>.npz (on the mask tracks' frames and tracks), which
     keypoint-guided models read. ``frame_range``: only the mask frames start:stop (a unit of a split
     camera; every crop is independent of the others, so the split changes nothing)."""
@@ -264,6 +268,13 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
             people = [{**j.hand, "xy": res["xy"][i], "sigma": res["sigma"][i], "visibility": res["visibility"][i]}
                       for i, j in enumerate(pending)]
             hands.refine(people)  # writes into res's rows
+        if contact is not None:
+            cc = [j.contact_crop for j in pending]
+            keep = [i for i, c in enumerate(cc) if c is not None]
+            if keep:
+                net_c = contact.predict_crops(np.stack([cc[i][0] for i in keep]),
+                                              np.stack([cc[i][1] for i in keep]) if contact.cfg.use_mask else None)
+                res["contact"][keep] = net_c["contact"]
         ti = np.array([j.t for j in pending])
         ki = np.array([j.k for j in pending])
         out.valid[ti, ki] = True
@@ -274,7 +285,7 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
     done = 0
     with _progress() as bar:
         task = bar.add_task(f"landmarks {cam}" + (f" {frame_range[0]}-{frame_range[1]}" if frame_range else ""), total=total)
-        for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints, hands is not None),
+        for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints, hands is not None, contact),
                             maxsize=2 * batch):
             pending.append(job)
             if len(pending) >= batch:
