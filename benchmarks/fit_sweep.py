@@ -22,6 +22,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+def parse(text: str, default):
+    """A --values item as the field's type (a bool from true/false, 1/0, on/off)."""
+    if isinstance(default, bool):
+        return text.strip().lower() in ("true", "1", "on", "yes")
+    return type(default)(text)
+
+
 def main() -> None:
     from mamma_kit.core.tracks import KeypointTracks
     from mamma_kit.fitting.stages import FitConfig
@@ -43,11 +50,11 @@ def main() -> None:
         print(f"\n{src}: {read} hands read, the hand model sure of {sure} ({100 * sure / max(read, 1):.1f} %)")
         print(f"| {a.param} | MPJPE mm | body | hands | PA-MPJPE mm | hands PA | fit s |")
         print("|---|---|---|---|---|---|---|")
-        for v in (type(default)(x) for x in a.values.split(",")):
+        for v in (parse(x, default) for x in a.values.split(",")):
             ws = fresh_copy(src, a.scratch / f"{src.name}-{a.param}-{v}")
             t0 = time.perf_counter()
             m = refit(ws, stages=a.stages, config=dataclasses.replace(FitConfig(), **{a.param: v}))
-            print(f"| {v:g} | {m['mpjpe_mm']:.1f} | {m['mpjpe_body_mm']:.1f} | {m['mpjpe_hands_mm']:.1f} | "
+            print(f"| {v} | {m['mpjpe_mm']:.1f} | {m['mpjpe_body_mm']:.1f} | {m['mpjpe_hands_mm']:.1f} | "
                   f"{m['pa_mpjpe_mm']:.1f} | {m['pa_mpjpe_hands_mm']:.1f} | {time.perf_counter() - t0:.0f} |",
                   flush=True)
 
