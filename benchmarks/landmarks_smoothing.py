@@ -2,10 +2,11 @@
 captures against the renderer's truth.
 
     python benchmarks/landmarks_smoothing.py WORKSPACE [WORKSPACE ...] [--sigmas 0,0.05,0.1,0.15] [--ks 1,4,8]
+        [--contact auto|off]
 
 WORKSPACE: a synthetic capture with person masks and keypoints (e.g. `mamma-kit demo --out DIR`). In a
-copy (WORKSPACE-smoothing), `mamma-kit landmarks --smooth-s 0` writes the network's raw landmarks
-once; each (sigma in seconds, k nearest landmarks for contact) is then applied in memory and judged
+copy (WORKSPACE-smoothing-<contact>), `mamma-kit landmarks --smooth-s 0 --contact C` writes the
+network's raw landmarks once (--contact off: embedded-kp's own contact head, as the README's figures); each (sigma in seconds, k nearest landmarks for contact) is then applied in memory and judged
 by `mamma-kit eval`'s landmark metrics: person-contact ROC AUC and visibility accuracy (the 2D
 positions do not change).
 """
@@ -30,18 +31,20 @@ def main() -> None:
     ap.add_argument("workspaces", nargs="+", type=Path)
     ap.add_argument("--sigmas", default="0,0.05,0.1,0.15", help="seconds, comma-separated")
     ap.add_argument("--ks", default="1,4,8", help="nearest landmarks averaged for contact")
+    ap.add_argument("--contact", default="auto", help="the landmarks stage's --contact (auto or off)")
     a = ap.parse_args()
     print("command: benchmarks/landmarks_smoothing.py " + " ".join(sys.argv[1:]))
     body = load_body_model("open")
     rest_l3 = body.np.v_template[body.landmark_ids]
     for src in a.workspaces:
-        dst = src.with_name(src.name + "-smoothing")
+        dst = src.with_name(f"{src.name}-smoothing-{a.contact}")
         if not (dst / "landmarks").is_dir():
             shutil.rmtree(dst, ignore_errors=True)
             top = str(src.resolve())
             shutil.copytree(src, dst, ignore=lambda d, names: [n for n in names if str(Path(d).resolve()) == top
                                                                 and n in ("report", "smplx", "landmarks")])
-            subprocess.run(["mamma-kit", "landmarks", str(dst), "--smooth-s", "0", "-q"], check=True)
+            subprocess.run(["mamma-kit", "landmarks", str(dst), "--smooth-s", "0", "--contact", a.contact, "-q"],
+                           check=True)
         ws = Workspace(dst)
         raw = {p.stem: LandmarkTracks.load(p) for p in sorted(ws.landmarks_dir.glob("*.npz"))}
         print(f"\n{src}: {len(raw)} cameras")
