@@ -378,3 +378,57 @@ def test_specks_leave_with_the_person_they_are_next_to():
     near_rest[60:62, 144:146] = True
     got = crumbs_of(piece, piece | rest | near_piece | near_rest, 20)
     assert np.array_equal(got, near_piece)
+
+
+def test_two_people_who_came_as_one_blob_are_split_back_to_the_start():
+    """The blob of two people touching in the first frames has one track until they part; then the
+    frames before are tracked again backwards from the parting (tracker.split_back), and each
+    person keeps their own mask from the first frame (the forward pass alone gave them one)."""
+    from mamma_kit.masks.builtin import BuiltinSettings
+    from mamma_kit.masks.tracker import Tracker, parted_from, split_back
+
+    s = BuiltinSettings()
+    tr = Tracker((H, W), s)
+    cidx = np.zeros((H, W), np.int64)
+    people, frames, prev = [], [], {}
+    for t in range(8):
+        a, _ = _person_mask(100 - 1.0 * t, 150, 100)
+        b, _ = _person_mask(130 + 1.0 * t, 140, 90)
+        out = tr.step(t, a | b, cidx)
+        born = [k for k in out if k >= tr.next_id_at_frame_start]
+        if t and born:
+            k_old = parted_from(born[0], out, prev)
+            assert k_old is not None and k_old in out
+            fixed = split_back({k_old: out[k_old][0], born[0]: out[born[0]][0]}, cidx,
+                               [(tj, fj, cidx) for tj, fj in reversed(frames)], s)
+            assert sorted(fixed) == list(range(t))  # every frame before the parting
+            for tj, fr in fixed.items():
+                a_j, b_j = people[tj]
+                # each track holds mostly one person: its own 85 %, the other's at most 15 %
+                own = {k: max(np.count_nonzero(m & a_j) / a_j.sum(), np.count_nonzero(m & b_j) / b_j.sum())
+                       for k, (m, _) in fr.items()}
+                other = {k: min(np.count_nonzero(m & a_j) / a_j.sum(), np.count_nonzero(m & b_j) / b_j.sum())
+                         for k, (m, _) in fr.items()}
+                assert min(own.values()) > 0.85 and max(other.values()) < 0.15, (tj, own, other)
+                holds_a = [k for k, (m, _) in fr.items() if np.count_nonzero(m & a_j) > 0.5 * a_j.sum()]
+                assert len(holds_a) == 1 and holds_a[0] == (k_old if np.count_nonzero(out[k_old][0] & a) else born[0])
+            break
+        people.append((a, b))
+        frames.append((t, a | b))
+        prev = out
+    else:
+        raise AssertionError("the two never parted")
+
+
+def test_split_back_stops_where_a_person_came_in():
+    """A person who walks in next to another (not out of their blob) is not carried back before
+    they were there: split_back stops at the first frame where a seed finds nothing."""
+    from mamma_kit.masks.builtin import BuiltinSettings
+    from mamma_kit.masks.tracker import split_back
+
+    a, _ = _person_mask(100, 150, 100)
+    b, _ = _person_mask(200, 150, 100)
+    earlier = [(2, a | b, np.zeros((H, W), np.int64)), (1, a, np.zeros((H, W), np.int64)),
+               (0, a, np.zeros((H, W), np.int64))]
+    fixed = split_back({0: a, 1: b}, np.zeros((H, W), np.int64), earlier, BuiltinSettings())
+    assert sorted(fixed) == [2]

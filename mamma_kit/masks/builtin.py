@@ -26,7 +26,10 @@ Per camera:
    full, two tracks lying one above the other (one person's top and legs) are joined to make room.
    Components no prediction
    claims are matched to recently lost tracks by appearance and position (Hungarian), else
-   start new tracks. Tracks lost for more than ``max_lost`` frames end; a person who comes back
+   start new tracks. A new track that parted from another (the previous frame's mask of that
+   track held it: two people who came in as one blob) is followed back in time
+   (``tracker.split_back``, up to ``backfill_frames``) and the blob they shared is split between
+   them there too, so neither person is missing, nor the other's body given to one, until they part. Tracks lost for more than ``max_lost`` frames end; a person who comes back
    later gets a new track (cross-view matching rejoins it with its person).
 
 Work happens at a reduced resolution (``max_side``) and masks are scaled back to the video's.
@@ -39,6 +42,7 @@ tracker.py (step 3, per frame); this module reads the video and puts them togeth
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import asdict
 from pathlib import Path
 
@@ -51,7 +55,7 @@ from mamma_kit.masks.base import CameraInput, MaskTrackBuilder, track_summary
 from mamma_kit.masks.builtin_settings import BuiltinSettings
 from mamma_kit.masks.segment import (Background, build_background, colour_index, denoise, enclosed, foreground,
                                      larger_than, plate_background, refine_rim)
-from mamma_kit.masks.tracker import Tracker
+from mamma_kit.masks.tracker import Tracker, parted_from, split_back
 
 __all__ = ["BuiltinBackend", "BuiltinSettings", "load_settings"]
 
@@ -108,6 +112,20 @@ class BuiltinBackend:
             bg, bg_info = self._plate(cam, bg, prep, (W, H))
         tracker = Tracker((ws_[1], ws_[0]), s)
         out_tracks = MaskTrackBuilder(cam.name, (W, H), times)
+        # the last frames' inputs (bit-packed), for a split carried back in time (tracker.split_back)
+        recent: deque = deque(maxlen=max(s.backfill_frames, 0))
+        prev: dict = {}
+        backfilled = 0
+
+        def emit(ti: int, k: int, m: np.ndarray, sc: float, gaps) -> None:
+            if gaps is not None:
+                m = m & ~gaps
+            if f != 1.0:
+                m = cv2.resize(m.astype(np.uint8) * 255, (W, H), interpolation=cv2.INTER_LINEAR) > 127
+            out_tracks.add(ti, k, m, sc)
+
+        shape = (ws_[1], ws_[0])
+        unpack = (lambda b: None if b is None else np.unpackbits(b, count=shape[0] * shape[1]).reshape(shape) > 0)
         for t, img in log.track(rd.frames(), f"track {cam.name}", total=n):
             ti = int(np.argmin(np.abs(times - t)))
             small = prep(img)
@@ -120,16 +138,31 @@ class BuiltinBackend:
             fg = dn | holes
             if s.edge_coverage > 0:
                 fg = refine_rim(fg, small, bg, s)
-            out = tracker.step(ti, fg, colour_index(small))
+            cidx = colour_index(small)
+            out = tracker.step(ti, fg, cidx)
             for k, (m, sc) in out.items():
-                if gaps is not None:
-                    m = m & ~gaps
-                if f != 1.0:
-                    m = cv2.resize(m.astype(np.uint8) * 255, (W, H), interpolation=cv2.INTER_LINEAR) > 127
-                out_tracks.add(ti, k, m, sc)
+                emit(ti, k, m, sc, gaps)
+            # a new track that parted from another: the frames before, when they were one blob, split
+            born = [k for k in out if k >= tracker.next_id_at_frame_start] if recent else []
+            for k_new in born:
+                k_old = parted_from(k_new, out, prev)
+                if k_old is None:
+                    continue
+                earlier = [(tj, unpack(fj), cj.astype(np.int32)) for tj, fj, cj, _ in reversed(recent)]
+                fixed = split_back({k_old: out[k_old][0], k_new: out[k_new][0]}, cidx, earlier, s)
+                gaps_at = {tj: gj for tj, _, _, gj in recent}
+                for tj, fr in fixed.items():
+                    for k, (m, sc) in fr.items():
+                        emit(tj, k, m, sc, unpack(gaps_at[tj]))
+                backfilled += len(fixed)
+            if recent.maxlen:
+                recent.append((ti, np.packbits(fg), cidx.astype(np.uint16),
+                               None if gaps is None else np.packbits(gaps)))
+            prev = out
         mt = out_tracks.build()
         summ = track_summary(mt)
         summ["working_size"] = list(ws_)
+        summ["backfilled_frames"] = backfilled  # frames where two tracks that parted later were split
         summ["background"] = bg_info
         summ["settings"] = asdict(s)
         return mt, summ

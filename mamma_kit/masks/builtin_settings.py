@@ -24,6 +24,9 @@ class BuiltinSettings:
     colour_weight: float = 1.0
     colour_smooth_frac: float = 0.006  # splitting touching people: colour evidence over this fraction of the height
     max_lost: int = 45  # frames a lost track can be re-identified
+    # a track that parts from another (two people who came in as one blob) is followed back this many
+    # frames, splitting the blob they shared there (0: off)
+    backfill_frames: int = 90
     reid_similarity: float = 0.5  # Bhattacharyya coefficient needed to re-identify a lost track
     velocity_smoothing: float = 0.5
     people: int | None = None  # how many people the capture shows (splits blobs of people side by side)

@@ -368,3 +368,38 @@ class Tracker:
             pure.add(j)
             tr.hist = histogram(cidx, two[keep])
             tr.area = float(two[keep].sum())
+
+
+# ---- a split carried back in time -----------------------------------------------------------
+def parted_from(k_new: int, out: Frame, prev: Frame, share: float = 0.5) -> int | None:
+    """The track of the previous frame whose mask held at least ``share`` of new track ``k_new``'s
+    mask and which goes on in this frame (``out``): the one it parted from, else None."""
+    m = out[k_new][0]
+    area = max(int(m.sum()), 1)
+    best = max(((np.count_nonzero(pm & m), k) for k, (pm, _) in prev.items() if k in out and k != k_new),
+               default=(0, None))
+    return best[1] if best[0] >= share * area else None
+
+
+def split_back(seeds: dict[int, np.ndarray], cidx: np.ndarray, earlier: list[tuple[int, np.ndarray, np.ndarray]],
+               s: BuiltinSettings) -> dict[int, Frame]:
+    """Frames before two tracks parted, tracked again from the parting backwards in time.
+
+    seeds: track id -> its mask (H, W) in the frame where they parted (with that frame's colour
+    bins ``cidx``); earlier: (frame, foreground, colour bins) of the frames before it, newest first.
+    A fresh tracker follows only the seeds (anyone else it meets gets ids it ignores), so the blob
+    the seeds shared is split between them as for people touching. Returns frame -> the seeds'
+    masks, for the frames where every seed keeps a piece, stopping at the first where one does not
+    (one of them came in there)."""
+    tr = Tracker(cidx.shape, s)
+    for k, m in seeds.items():
+        tr.tracks[k] = Track(k, m, centroid(m), last_seen=0, hist=histogram(cidx, m), area=float(m.sum()))
+    tr.next_id = max(seeds) + (1 << 30)  # others' ids, never the forward tracker's
+    res: dict[int, Frame] = {}
+    for i, (t, fg, ci) in enumerate(earlier, start=1):
+        out = tr.step(i, fg, ci)
+        if not all(k in out and out[k][0].any() for k in seeds):
+            break
+        res[t] = {k: out[k] for k in seeds}
+    return res
+
