@@ -29,8 +29,8 @@ Per camera:
    start new tracks. A new track that parted from another (the previous frame's mask of that
    track held it: two people who came in as one blob) is followed back in time
    (``tracker.split_back``, up to ``backfill_frames``) and the blob they shared is split between
-   them there too, so neither person is missing, nor the other's body given to one, until they part. Tracks lost for more than ``max_lost`` frames end; a person who comes back
-   later gets a new track (cross-view matching rejoins it with its person).
+   them there too, so neither person is missing, nor the other's body given to one, until they
+   part. Tracks lost for more than ``max_lost`` frames end; a person who comes back later gets a new track (cross-view matching rejoins it with its person).
 
 Work happens at a reduced resolution (``max_side``) and masks are scaled back to the video's.
 Where it struggles (benchmarks/masks_quality.py): people who never move (background), clothes
@@ -148,12 +148,12 @@ class BuiltinBackend:
                 k_old = parted_from(k_new, out, prev)
                 if k_old is None:
                     continue
-                earlier = [(tj, unpack(fj), cj.astype(np.int32)) for tj, fj, cj, _ in reversed(recent)]
+                # unpacked lazily: split_back usually stops long before the buffer's oldest frame
+                earlier = ((tj, unpack(fj), cj.astype(np.int32)) for tj, fj, cj, _ in reversed(recent))
                 fixed = split_back({k_old: out[k_old][0], k_new: out[k_new][0]}, cidx, earlier, s)
-                gaps_at = {tj: gj for tj, _, _, gj in recent}
-                for tj, fr in fixed.items():
-                    for k, (m, sc) in fr.items():
-                        emit(tj, k, m, sc, unpack(gaps_at[tj]))
+                for tj, _, _, gj in recent:
+                    for k, (m, sc) in fixed.get(tj, {}).items():
+                        emit(tj, k, m, sc, unpack(gj))
                 backfilled += len(fixed)
             if recent.maxlen:
                 recent.append((ti, np.packbits(fg), cidx.astype(np.uint16),

@@ -9,6 +9,7 @@ the steps below keep the order in which they add tracks.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import cv2
@@ -381,7 +382,7 @@ def parted_from(k_new: int, out: Frame, prev: Frame, share: float = 0.5) -> int 
     return best[1] if best[0] >= share * area else None
 
 
-def split_back(seeds: dict[int, np.ndarray], cidx: np.ndarray, earlier: list[tuple[int, np.ndarray, np.ndarray]],
+def split_back(seeds: dict[int, np.ndarray], cidx: np.ndarray, earlier: Iterable[tuple[int, np.ndarray, np.ndarray]],
                s: BuiltinSettings) -> dict[int, Frame]:
     """Frames before two tracks parted, tracked again from the parting backwards in time.
 
@@ -402,4 +403,3 @@ def split_back(seeds: dict[int, np.ndarray], cidx: np.ndarray, earlier: list[tup
             break
         res[t] = {k: out[k] for k in seeds}
     return res
-
