@@ -44,6 +44,9 @@ def fit_cmd(
                                                       "where floor contact is predicted."),
     hands: bool = typer.Option(True, "--hand-points/--no-hand-points", help="Use the hand model's points "
                                "(keypoints/<cam>.npz, where it is sure of a hand) beside the landmarks."),
+    view_outliers: float = typer.Option(0.1, "--view-outliers", min=0.0, help="Set a view aside for a frame where "
+                                        "its keypoints miss the other views' consensus by more than this fraction of "
+                                        "the person's size (0: never; needs 3 or more cameras)."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default: torch's)."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
     json_out: bool = JsonOpt,
@@ -59,7 +62,7 @@ def fit_cmd(
         raise UserError("--cameras and --camera-list both given", "pass one of them")
     n_stages = parse_stages(stages)
     names = [c.strip() for c in camera_list.split(",") if c.strip()] if camera_list else None
-    cfg = FitConfig(chunk=chunk, floor=floor)
+    cfg = FitConfig(chunk=chunk, floor=floor, view_outlier_frac=view_outliers)
     if not hands:
         cfg.hand_keypoint_weight = 0.0
     ws = Workspace(workspace)
@@ -67,7 +70,8 @@ def fit_cmd(
                         command="mamma-kit fit " + " ".join(
                             x for x in [f"--cameras {cameras}" if cameras else "",
                                         f"--camera-list {camera_list}" if camera_list else "",
-                                        f"--stages {stages}", "" if hands else "--no-hand-points"] if x))
+                                        f"--stages {stages}", "" if hands else "--no-hand-points",
+                                        f"--view-outliers {view_outliers:g}"] if x))
     if json_out:
         emit_json(rep)
     elif not rep.get("skipped"):

@@ -34,7 +34,7 @@ def rays(rig: Rig, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centres, dirs
 
 
-def _solve_rays(centres: np.ndarray, dirs: np.ndarray, w: np.ndarray, axis: tuple) -> tuple[np.ndarray, np.ndarray]:
+def solve_rays(centres: np.ndarray, dirs: np.ndarray, w: np.ndarray, axis: tuple) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares point of weighted rays, summing over ``axis``; returns X and the 3x3 A."""
     I = np.eye(3)
     Pm = I - dirs[..., :, None] * dirs[..., None, :]  # (..., 3, 3) projector orthogonal to the ray
@@ -51,7 +51,7 @@ def _solve_rays(centres: np.ndarray, dirs: np.ndarray, w: np.ndarray, axis: tupl
 
 def body_centres(rig: Rig, dirs: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """dirs (C, P, T, L, 3), w (C, P, T, L) -> centres (P, T, 3), ok (P, T) (rays from >= 2 views)."""
-    X, A = _solve_rays(rig.centers(), dirs, w, axis=(0, 3))
+    X, A = solve_rays(rig.centers(), dirs, w, axis=(0, 3))
     views = ((w > 0).sum(3) > 0).sum(0)
     return X, views >= 2
 
@@ -76,7 +76,7 @@ def triangulate(rig: Rig, dirs: np.ndarray, xy: np.ndarray, sigma: np.ndarray, w
     wr = base.copy()
     X = None
     for r in range(len(gammas) + 1):
-        X, A = _solve_rays(cc, dirs, wr, axis=0)
+        X, A = solve_rays(cc, dirs, wr, axis=0)
         if r == len(gammas):
             break
         gamma = gammas[r]

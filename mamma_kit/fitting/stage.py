@@ -84,6 +84,7 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     from mamma_kit.core.manifest import StageManifest, producer
     from mamma_kit.core.smplxfile import SmplxResult, write_smplx_result
     from mamma_kit.fitting.data import load_fit_data
+    from mamma_kit.fitting.views import set_aside_inconsistent
 
     if threads:
         torch.set_num_threads(int(threads))
@@ -111,6 +112,10 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         return rep
     log.info(f"fit: {len(data.person_ids)} person(s), {len(data.frame_times)} frames, cameras "
              f"{', '.join(data.cameras)}, stages 1-{stages}")
+    data, set_aside = set_aside_inconsistent(data, cfg.view_outlier_frac)
+    if set_aside:
+        log.info("fit: views set aside where their keypoints miss the other views (frames): " + "; ".join(
+            f"{c} " + ", ".join(f"person {p} {n}" for p, n in ps.items()) for c, ps in set_aside.items()))
     fitter = Fitter(model, data, cfg)
     from mamma_kit.fitting.units import fit_in_units
 
@@ -137,6 +142,7 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         "chunks": result.chunks,
         "stage_stats": {k: v.to_dict() for k, v in result.stats.items()},
         "reprojection_px": reprojection_report(model, data, result),
+        "views_set_aside": {"max_miss_frac": cfg.view_outlier_frac, "frames": set_aside},
         "keypoints": ({"used": True, "weight": cfg.keypoint_weight, "robust_scale_sigmas": cfg.keypoint_gamma,
                        "regressor_learned": fitter.body_regressor.learned,
                        "reprojection_px": keypoint_report(model, data, result, fitter.body_regressor)}

@@ -139,6 +139,9 @@ class FitConfig:
     # -> 2.99 %) (benchmarks/fit_sweep.py --param keypoint_gamma, benchmarks/heldout_view.py)
     keypoint_gamma: float = 2.0
     landmark_weight: float = 1.0  # 0: keypoints alone (benchmarks)
+    # a view whose body keypoints miss the other views' consensus by more than this fraction of the
+    # person's size there is set aside for that frame, landmarks too (fitting/views.py; 0 = off)
+    view_outlier_frac: float = 0.1
 
     def prior_sigma(self) -> np.ndarray:
         """(55,) rad: the pose prior's sigma per joint (the fingers' own, the rest the body's)."""

@@ -200,9 +200,13 @@ def identity_tables(ident) -> list[TableSpec]:
 
 # ---- 4. fit --------------------------------------------------------------------------------
 def fit_report_tables(rep: dict) -> list[TableSpec]:
-    """smplx/fit_report.json as tables: summary, stages, reprojection per camera, people."""
+    """smplx/fit_report.json as tables: summary, stages, reprojection per camera, people, and the
+    views set aside where there were any."""
     span = rep.get("time_span_s") or [None, None]
     st = rep.get("stage_stats", {})
+    aside = (rep.get("views_set_aside") or {}).get("frames") or {}
+    extra = [(["camera", "person", "frames"], [[c, p, n] for c, ps in aside.items() for p, n in ps.items()],
+              "views set aside: their keypoints missed the other views' consensus (fitting/views.py)")] if aside else []
     return [
         (["fit", "value"], [["body model", rep.get("body_model")], ["cameras", rep.get("cameras")],
                             ["reference clock", rep.get("reference")], ["frames", rep.get("frames")],
@@ -216,7 +220,7 @@ def fit_report_tables(rep: dict) -> list[TableSpec]:
           for c, v in rep.get("reprojection_px", {}).items()], "reprojection (fit_report.json)"),
         (["person", "frames observed", "file"],
          [[p.get("id"), p.get("frames_observed"), p.get("file")] for p in rep.get("persons", [])], "people"),
-    ]
+    ] + extra
 
 
 # ---- 7. ground truth -------------------------------------------------------------------------

@@ -1,0 +1,93 @@
+"""Views whose keypoints disagree with the other views: a person's whole reading there set aside.
+
+A keypoint detector that loses a person behind someone else, or follows the wrong person, in one
+view gives points that are self-consistent in that image but meet no ray of the other views; and
+the keypoint-guided landmarks of that crop follow them. The fit's robust losses only down-weight
+points one by one, and a whole view that is wrong together still pulls (the demo: one dancer
+partly behind the other in cam3 for 40 frames, BlazePose 16-27 % of her height off there).
+
+Per person and frame, each pair of views that both see a body point triangulates the body points
+(``CONSENSUS_POINTS``); every view's median reprojection error under that pair, as a fraction of
+the person's size in the view, says whether it agrees. The pair with the most agreeing views (then
+the smallest error) is the consensus; a view outside it is set aside for that frame when at least
+two views agree without it (with two views in all, neither can be told wrong).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from itertools import combinations
+
+import numpy as np
+
+from mamma_kit.core.camera import Rig
+from mamma_kit.fitting.init import rays, solve_rays
+
+# BlazePose's nose, shoulders, elbows, wrists, hips, knees, ankles: points every view reads alike
+CONSENSUS_POINTS = (0, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+MIN_POINTS = 4  # body points a view must share with a pair to be judged
+
+
+def view_errors(rig: Rig, xy_cptn2: np.ndarray, w_cptn: np.ndarray, size_cpt: np.ndarray) -> np.ndarray:
+    """Median reprojection error (fraction of the person's size in the view) of every view under
+    every pair's triangulation: (pairs, C, P, T), NaN where the view or the pair sees too little.
+
+    xy (C, P, T, N, 2) px, w (C, P, T, N) 1 where a point is read, size (C, P, T) px."""
+    C = len(rig)
+    centres, dirs = rays(rig, xy_cptn2)
+    seen = w_cptn > 0
+    out = []
+    for a, b in combinations(range(C), 2):
+        both = seen[a] & seen[b]  # (P, T, N)
+        X, _ = solve_rays(centres[[a, b]], dirs[[a, b]], np.stack([both, both]).astype(np.float64), axis=0)
+        proj = rig.project(X)  # (C, P, T, N, 2)
+        e = np.linalg.norm(proj - xy_cptn2, axis=-1) / np.maximum(size_cpt, 1.0)[..., None]
+        ok = seen & both[None] & np.isfinite(e)
+        e = np.where(ok, e, np.nan)
+        with warnings.catch_warnings():  # a view that sees none of the pair's points: NaN, no warning
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(e, -1)
+        out.append(np.where(ok.sum(-1) >= MIN_POINTS, med, np.nan))
+    return np.stack(out) if out else np.zeros((0, C) + size_cpt.shape[1:])
+
+
+def inconsistent_views(rig: Rig, kp_xy: np.ndarray, kp_vis: np.ndarray, kp_size: np.ndarray,
+                       frac: float, min_vis: float = 0.5) -> np.ndarray:
+    """(C, P, T) bool: views whose body points miss the consensus of the others by more than
+    ``frac`` of the person's size (see module doc). kp_xy (C, P, T, 33, 2), kp_vis (C, P, T, 33),
+    kp_size (C, P, T)."""
+    C = kp_vis.shape[0]
+    flags = np.zeros(kp_vis.shape[:3], bool)
+    if C < 3 or frac <= 0:
+        return flags
+    pts = list(CONSENSUS_POINTS)
+    w = (kp_vis[..., pts] > min_vis).astype(np.float64)
+    E = view_errors(rig, kp_xy[..., pts, :].astype(np.float64), w, kp_size.astype(np.float64))  # (Q, C, P, T)
+    agree = E <= frac  # NaN compares False
+    n_agree = agree.sum(1)  # (Q, P, T)
+    err = np.where(agree, E, 0.0).sum(1)
+    # best pair: most agreeing views, then the least mean error among them (a term below 1)
+    score = n_agree - 0.5 * err / (np.maximum(n_agree, 1) * frac)
+    best = np.argmax(score, 0)  # (P, T)
+    Eb = np.take_along_axis(E, best[None, None], 0)[0]  # (C, P, T)
+    nb = np.take_along_axis(n_agree, best[None], 0)[0]  # (P, T)
+    return (Eb > frac) & (nb >= 2)[None]  # NaN (too little seen) compares False
+
+
+def set_aside_inconsistent(data, frac: float):
+    """``data`` (FitData) with the weights of inconsistent views (``inconsistent_views``) at 0 for
+    those frames (landmarks, keypoints, hand points), and a summary {camera: {person: frames}}.
+    The data is returned as it is without keypoints, with fewer than three cameras or ``frac`` 0."""
+    if not data.has_keypoints or frac <= 0 or len(data.cameras) < 3:
+        return data, {}
+    flags = inconsistent_views(data.rig, data.kp_xy, data.kp_vis, data.kp_size, frac)
+    if not flags.any():
+        return data, {}
+    keep = (~flags).astype(np.float32)
+    vis = data.vis * keep[..., None]
+    kp_vis = data.kp_vis * keep[..., None]
+    hand_vis = None if data.hand_vis is None else data.hand_vis * keep[..., None]
+    summary = {c: {str(p): int(flags[ci, pi].sum()) for pi, p in enumerate(data.person_ids) if flags[ci, pi].any()}
+               for ci, c in enumerate(data.cameras) if flags[ci].any()}
+    return dataclasses.replace(data, vis=vis, kp_vis=kp_vis, hand_vis=hand_vis), summary
