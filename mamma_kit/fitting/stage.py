@@ -84,7 +84,6 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     from mamma_kit.core.manifest import StageManifest, producer
     from mamma_kit.core.smplxfile import SmplxResult, write_smplx_result
     from mamma_kit.fitting.data import load_fit_data
-    from mamma_kit.fitting.views import set_aside_inconsistent
 
     if threads:
         torch.set_num_threads(int(threads))
@@ -112,11 +111,11 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         return rep
     log.info(f"fit: {len(data.person_ids)} person(s), {len(data.frame_times)} frames, cameras "
              f"{', '.join(data.cameras)}, stages 1-{stages}")
-    data, set_aside = set_aside_inconsistent(data, cfg.view_outlier_frac)
+    fitter = Fitter(model, data, cfg)
+    data, set_aside = fitter.data, fitter.set_aside  # the data as fitted: views set aside weigh 0
     if set_aside:
         log.info("fit: views set aside where their keypoints miss the other views (frames): " + "; ".join(
             f"{c} " + ", ".join(f"person {p} {n}" for p, n in ps.items()) for c, ps in set_aside.items()))
-    fitter = Fitter(model, data, cfg)
     from mamma_kit.fitting.units import fit_in_units
 
     result = fit_in_units(fitter)  # Fitter.fit with its chunks as units of the executor

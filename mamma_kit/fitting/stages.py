@@ -58,6 +58,7 @@ from mamma_kit.fitting.gauss_newton import DTYPE, GaussNewton, GNConfig, GNRepor
 from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp, so3_log
 from mamma_kit.fitting.projection import RigTensors
 from mamma_kit.fitting.repose import FINGER_JOINTS, repose_limbs
+from mamma_kit.fitting.views import set_aside_inconsistent
 
 RIGID_S1_PARTS = ("torso", "pelvis", "neck", "head")
 # a view sees a person in a frame when the person's landmark visibilities there sum to more
@@ -296,8 +297,10 @@ class Fitter:
 
     def __init__(self, model, data: FitData, cfg: FitConfig | None = None):
         self.model = model
-        self.data = data
         self.cfg = cfg or FitConfig()
+        # views whose keypoints miss the others' consensus weigh 0 there: {camera: {person: frames}}
+        self.data, self.set_aside = set_aside_inconsistent(data, self.cfg.view_outlier_frac)
+        data = self.data
         self.kin = BodyKinematics(model)
         self.cams = RigTensors.from_rig(data.rig)
         self.active_all = tuple(int(j) for j in np.unique(self.kin.infl.numpy()) if j < sk.NUM_JOINTS)
