@@ -18,8 +18,9 @@ Each model runs through the real `mamma-kit landmarks` on ground-truth person ma
 shipped BlazePose on them for the keypoint-guided model) and `mamma-kit eval`
 compares with the renderer's landmarks. Printed per capture and model: mean 2D error in % of
 the person's box height (all landmarks and visible ones) and px, visibility accuracy, person-
-and floor-contact ROC AUC, and the identity accuracy of `mamma-kit match` on those landmarks; for the first model, where its
-visibility errors are (``silhouette_split``: at the person's silhouette edge or elsewhere). With --crops, the same metrics on held-out training-style crops
+and floor-contact ROC AUC, and the identity accuracy of `mamma-kit match` on those landmarks;
+for the first model, where its visibility errors are (``silhouette_split``: at the person's
+silhouette edge or elsewhere). With --crops, the same metrics on held-out training-style crops
 (network input resolution, exact masks). Targets (issue): visible error <= 3 % of box height,
 visibility accuracy >= 90 %, contact AUC >= 0.85 (person) and >= 0.9 (floor), and better than
 the single-query baseline.
@@ -191,10 +192,11 @@ def main() -> None:
                   f"({ids.get('persons')} persons)  [{m['instances']} person-frames, {m['seconds']:.0f} s]", flush=True)
             if mname == next(iter(models)):
                 sp = m["visibility_at_silhouette"] = silhouette_split(ws)
-                print(f"        visibility errors at the silhouette (true position within {100 * sp['band_frac']:.1f} % "
-                      f"of the box height, >= 1 px, of its edge): {100 * sp['share_of_errors']:.0f} % of the errors "
-                      f"on {100 * sp['share_of_landmarks']:.0f} % of the landmarks; accuracy there "
-                      f"{100 * sp['accuracy_at_rim']:.1f} %, elsewhere {100 * sp['accuracy_elsewhere']:.1f} %", flush=True)
+                print(f"        visibility errors at the silhouette (true position within "
+                      f"{100 * sp['band_frac']:.1f} % of the box height, >= 1 px, of its edge): "
+                      f"{100 * sp['share_of_errors']:.0f} % of the errors on {100 * sp['share_of_landmarks']:.0f} % "
+                      f"of the landmarks; accuracy there {100 * sp['accuracy_at_rim']:.1f} %, elsewhere "
+                      f"{100 * sp['accuracy_elsewhere']:.1f} %", flush=True)
     if a.crops is not None:
         for mname, (w, hands) in models.items():
             if hands != "off":  # crops are at the network's input size: nothing to refine from

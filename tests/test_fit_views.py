@@ -48,22 +48,37 @@ def test_unseen_points_and_two_camera_rigs_flag_nothing():
     assert not inconsistent_views(two, bad[:2], vis[:2], size[:2], 0.1).any()  # who is wrong? cannot tell
 
 
-def test_set_aside_zeroes_that_views_weights_only():
+def test_set_aside_takes_landmarks_only_where_they_follow_the_keypoints_off():
     from mamma_kit.fitting.data import FitData
     from mamma_kit.fitting.views import set_aside_inconsistent
 
     rig = make_ring_rig(4)
-    xy, vis, size, _ = _people_keypoints(rig)
-    xy[3, 0, 1] = xy[3, 1, 1]  # cam3 reads person 1 for person 0 in frame 1
+    xy, vis, size, X = _people_keypoints(rig)
+    lm_xy = xy[..., :10, :].copy()  # ten landmarks on the same bodies, read right in every view
+    xy[3, 0, 1] = xy[3, 1, 1]  # cam3's keypoints for person 0 in frame 1 are person 1's
     C, P, T, L = 4, 2, 6, 10
-    ones = np.ones((C, P, T, L), np.float32)
-    d = FitData(rig, {}, "cam0", "cam0", np.arange(T) / 30.0, 30.0, [0, 1], np.zeros((C, P, T, L, 2), np.float32),
-                np.ones((C, P, T, L, 2), np.float32), ones, 0 * ones, 0 * ones, np.ones((C, P, T), bool),
-                kp_xy=xy.astype(np.float32), kp_vis=vis.astype(np.float32), kp_size=size.astype(np.float32),
-                hand_xy=np.zeros((C, P, T, 42, 2), np.float32), hand_vis=np.ones((C, P, T, 42), np.float32))
-    out, summary = set_aside_inconsistent(d, 0.1)
-    assert summary == {"cam3": {"0": 1}}
-    for a in (out.vis, out.kp_vis, out.hand_vis):
-        assert (a[3, 0, 1] == 0).all() and a.sum() == a[..., :].size - a[3, 0, 1].size
-    assert d.vis.all()  # the input is left as it was
+
+    def data(lm):
+        ones = np.ones((C, P, T, L), np.float32)
+        return FitData(rig, {}, "cam0", "cam0", np.arange(T) / 30.0, 30.0, [0, 1], lm.astype(np.float32),
+                       np.ones((C, P, T, L, 2), np.float32), ones, 0 * ones, 0 * ones, np.ones((C, P, T), bool),
+                       kp_xy=xy.astype(np.float32), kp_vis=vis.astype(np.float32), kp_size=size.astype(np.float32),
+                       hand_xy=np.zeros((C, P, T, 42, 2), np.float32), hand_vis=np.ones((C, P, T, 42), np.float32))
+
+    def only_there(a):
+        return (a[3, 0, 1] == 0).all() and a.sum() == a.size - a[3, 0, 1].size
+
+    d = data(lm_xy)
+    subset = np.arange(L)
+    out, summary = set_aside_inconsistent(d, 0.1, subset)
+    assert only_there(out.kp_vis) and only_there(out.hand_vis)  # the keypoints go ...
+    assert out.vis.all() and summary == {"cam3": {"0": {"keypoints": 1, "landmarks": 0}}}  # ... the landmarks stay
+    followed = lm_xy.copy()
+    followed[3, 0, 1] = lm_xy[3, 1, 1]  # a keypoint-guided network follows them onto person 1
+    out, summary = set_aside_inconsistent(data(followed), 0.1, subset)
+    assert only_there(out.vis) and only_there(out.kp_vis)
+    assert summary == {"cam3": {"0": {"keypoints": 1, "landmarks": 1}}}
+    out, _ = set_aside_inconsistent(d, 0.1)  # no subset to judge them by: the landmarks go too
+    assert only_there(out.vis)
+    assert d.vis.all() and d.kp_vis.all()  # the input is left as it was
     assert set_aside_inconsistent(d, 0.0) == (d, {})

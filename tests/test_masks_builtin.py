@@ -282,6 +282,44 @@ def test_split_follows_colour_regions_not_single_pixels():
     assert iou[2.0] > 0.97 and iou[2.0] > iou[0.0] + 0.1, iou
 
 
+def test_matching_shirts_keep_their_upper_bodies_above_their_own_legs():
+    """Two people side by side holding hands, the same shirt, different trousers; one track's
+    prediction has drifted over half the other's upper body: colour cannot tell the shirts apart
+    and the prediction keeps the error (the next frame's prediction carries it on). With the body axes (the columns
+    of each one's hips and legs) the upper body goes back above its legs; one person behind the
+    other (axes together) leaves the split as it was."""
+    from mamma_kit.masks.segment import HIST_BINS, split_component
+
+    a_all, a_up = _person_mask(90.0, 150.0, 120.0)
+    b_all, b_up = _person_mask(170.0, 150.0, 120.0)
+    arms = np.zeros_like(a_all)
+    arms[58:63, 90:171] = True  # hands joined between them, sleeves the shirts' colour
+    comp = a_all | b_all | arms
+    n = int(np.prod(HIST_BINS))
+    shirt, trousers_a, trousers_b = 40, 5, 70
+    cidx = np.where(a_all & ~a_up, trousers_a, np.where(b_all & ~b_up, trousers_b, shirt))
+    hist_a, hist_b = np.full(n, 1e-3), np.full(n, 1e-3)
+    hist_a[[trousers_a, shirt]] = [0.6, 0.4]
+    hist_b[[trousers_b, shirt]] = [0.6, 0.4]
+    hists = [hist_a / hist_a.sum(), hist_b / hist_b.sum()]
+    xx = np.arange(a_all.shape[1])[None, :]
+    drifted = a_up & (xx >= 90)  # the half of a's upper body towards b
+    preds = [a_all & ~drifted, b_all | drifted | arms]
+    share = {}
+    for w in (0.0, 0.5):
+        parts, _ = split_component(comp, preds, hists, cidx, 1.0, 1.0, axis_weight=w)
+        share[w] = (parts[0] & a_up).sum() / a_up.sum()
+        assert (parts[1] & b_up).sum() / b_up.sum() > 0.95  # b keeps its own upper body either way
+    assert share[0.0] < 0.75 and share[0.5] > 0.9, share
+    # one behind the other: the axes coincide, the axis term is off and changes nothing
+    c_all, c_up = _person_mask(95.0, 150.0, 120.0)
+    behind = [a_all & ~drifted, c_all | drifted]
+    comp2 = a_all | c_all
+    cid2 = np.where(a_all & ~a_up, trousers_a, np.where(c_all & ~c_up, trousers_b, shirt))
+    off, on = (split_component(comp2, behind, hists, cid2, 1.0, 1.0, axis_weight=w)[0] for w in (0.0, 0.5))
+    assert all(np.array_equal(x, y) for x, y in zip(off, on))
+
+
 def test_large_enclosed_background_stays_open():
     """Hole filling restores clothes the background's colour cut out of a person; a large hole is
     floor seen between two people (or legs) with limbs and shadows around it, and stays open."""

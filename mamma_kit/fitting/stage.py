@@ -114,8 +114,10 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     fitter = Fitter(model, data, cfg)
     data, set_aside = fitter.data, fitter.set_aside  # the data as fitted: views set aside weigh 0
     if set_aside:
-        log.info("fit: views set aside where their keypoints miss the other views (frames): " + "; ".join(
-            f"{c} " + ", ".join(f"person {p} {n}" for p, n in ps.items()) for c, ps in set_aside.items()))
+        views = "; ".join(f"{c} " + ", ".join(f"person {p} {n['keypoints']} / {n['landmarks']}" for p, n in ps.items())
+                          for c, ps in set_aside.items())
+        log.info(f"fit: views set aside where their keypoints miss the other views (frames of keypoints / "
+                 f"landmarks): {views}")
     from mamma_kit.fitting.units import fit_in_units
 
     result = fit_in_units(fitter)  # Fitter.fit with its chunks as units of the executor

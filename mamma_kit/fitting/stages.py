@@ -58,7 +58,7 @@ from mamma_kit.fitting.gauss_newton import DTYPE, GaussNewton, GNConfig, GNRepor
 from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp, so3_log
 from mamma_kit.fitting.projection import RigTensors
 from mamma_kit.fitting.repose import FINGER_JOINTS, repose_limbs
-from mamma_kit.fitting.views import set_aside_inconsistent
+from mamma_kit.fitting.views import set_aside_inconsistent, spread_subset
 
 RIGID_S1_PARTS = ("torso", "pelvis", "neck", "head")
 # a view sees a person in a frame when the person's landmark visibilities there sum to more
@@ -67,6 +67,7 @@ MIN_VISIBLE_LANDMARKS = 20
 # ... or (with keypoints) when this many of BlazePose's 33 points are visible (> 0.5)
 MIN_VISIBLE_KEYPOINTS = 12
 FOOT_PARTS = ("left_foot", "right_foot")
+CONSENSUS_LANDMARKS = 32  # landmarks spread over the body that judge a view's landmarks (fitting/views.py)
 
 
 @dataclass
@@ -299,7 +300,9 @@ class Fitter:
         self.model = model
         self.cfg = cfg or FitConfig()
         # views whose keypoints miss the others' consensus weigh 0 there: {camera: {person: frames}}
-        self.data, self.set_aside = set_aside_inconsistent(data, self.cfg.view_outlier_frac)
+        lm_rest = model.v_template.numpy()[model.landmark_ids]
+        self.data, self.set_aside = set_aside_inconsistent(data, self.cfg.view_outlier_frac,
+                                                           spread_subset(lm_rest, CONSENSUS_LANDMARKS))
         data = self.data
         self.kin = BodyKinematics(model)
         self.cams = RigTensors.from_rig(data.rig)

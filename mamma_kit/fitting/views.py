@@ -9,8 +9,10 @@ partly behind the other in cam3 for 40 frames, BlazePose 16-27 % of her height o
 Per person and frame, each pair of views that both see a body point triangulates the body points
 (``CONSENSUS_POINTS``); every view's median reprojection error under that pair, as a fraction of
 the person's size in the view, says whether it agrees. The pair with the most agreeing views (then
-the smallest error) is the consensus; a view outside it is set aside for that frame when at least
-two views agree without it (with two views in all, neither can be told wrong).
+the smallest error) is the consensus; a view outside it loses its keypoints and hand points for
+that frame when at least two views agree without it (with two views in all, neither can be told
+wrong), and its landmarks too where they are off the consensus as well (a keypoint-guided network
+follows the detector; landmarks of another source, right where BlazePose failed, stay).
 """
 
 from __future__ import annotations
@@ -52,42 +54,82 @@ def view_errors(rig: Rig, xy_cptn2: np.ndarray, w_cptn: np.ndarray, size_cpt: np
     return np.stack(out) if out else np.zeros((0, C) + size_cpt.shape[1:])
 
 
+def consensus(E: np.ndarray, frac: float) -> tuple[np.ndarray, np.ndarray]:
+    """The consensus pair per person and frame from ``view_errors`` E (pairs, C, P, T): the pair
+    most views agree with (error <= frac), then the least mean error among them. Returns its index
+    (P, T) and how many views agree with it (P, T)."""
+    agree = E <= frac  # NaN compares False
+    n_agree = agree.sum(1)  # (Q, P, T)
+    err = np.where(agree, E, 0.0).sum(1)
+    score = n_agree - 0.5 * err / (np.maximum(n_agree, 1) * frac)  # the error term stays below 1
+    best = np.argmax(score, 0)
+    return best, np.take_along_axis(n_agree, best[None], 0)[0]
+
+
+def at_pair(E: np.ndarray, best: np.ndarray) -> np.ndarray:
+    """(C, P, T) errors of every view under pair ``best`` (P, T) of E (pairs, C, P, T)."""
+    return np.take_along_axis(E, best[None, None], 0)[0]
+
+
+def keypoint_errors(rig: Rig, kp_xy: np.ndarray, kp_vis: np.ndarray, kp_size: np.ndarray,
+                    min_vis: float = 0.5) -> np.ndarray:
+    """``view_errors`` of BlazePose's body points (``CONSENSUS_POINTS`` seen above ``min_vis``)."""
+    pts = list(CONSENSUS_POINTS)
+    w = (kp_vis[..., pts] > min_vis).astype(np.float64)
+    return view_errors(rig, kp_xy[..., pts, :].astype(np.float64), w, kp_size.astype(np.float64))
+
+
 def inconsistent_views(rig: Rig, kp_xy: np.ndarray, kp_vis: np.ndarray, kp_size: np.ndarray,
                        frac: float, min_vis: float = 0.5) -> np.ndarray:
     """(C, P, T) bool: views whose body points miss the consensus of the others by more than
     ``frac`` of the person's size (see module doc). kp_xy (C, P, T, 33, 2), kp_vis (C, P, T, 33),
     kp_size (C, P, T)."""
-    C = kp_vis.shape[0]
-    flags = np.zeros(kp_vis.shape[:3], bool)
-    if C < 3 or frac <= 0:
-        return flags
-    pts = list(CONSENSUS_POINTS)
-    w = (kp_vis[..., pts] > min_vis).astype(np.float64)
-    E = view_errors(rig, kp_xy[..., pts, :].astype(np.float64), w, kp_size.astype(np.float64))  # (Q, C, P, T)
-    agree = E <= frac  # NaN compares False
-    n_agree = agree.sum(1)  # (Q, P, T)
-    err = np.where(agree, E, 0.0).sum(1)
-    # best pair: most agreeing views, then the least mean error among them (a term below 1)
-    score = n_agree - 0.5 * err / (np.maximum(n_agree, 1) * frac)
-    best = np.argmax(score, 0)  # (P, T)
-    Eb = np.take_along_axis(E, best[None, None], 0)[0]  # (C, P, T)
-    nb = np.take_along_axis(n_agree, best[None], 0)[0]  # (P, T)
-    return (Eb > frac) & (nb >= 2)[None]  # NaN (too little seen) compares False
+    if kp_vis.shape[0] < 3 or frac <= 0:
+        return np.zeros(kp_vis.shape[:3], bool)
+    E = keypoint_errors(rig, kp_xy, kp_vis, kp_size, min_vis)
+    best, n_best = consensus(E, frac)
+    return (at_pair(E, best) > frac) & (n_best >= 2)[None]  # NaN (too little seen) compares False
 
 
-def set_aside_inconsistent(data, frac: float):
-    """``data`` (FitData) with the weights of inconsistent views (``inconsistent_views``) at 0 for
-    those frames (landmarks, keypoints, hand points), and a summary {camera: {person: frames}}.
-    The data is returned as it is without keypoints, with fewer than three cameras or ``frac`` 0."""
+def spread_subset(points_n3: np.ndarray, n: int) -> np.ndarray:
+    """Indices of ``n`` points spread over a point set (farthest-point sampling from point 0)."""
+    sel = [0]
+    dmin = np.linalg.norm(points_n3 - points_n3[0], axis=1)
+    for _ in range(min(n, len(points_n3)) - 1):
+        i = int(np.argmax(dmin))
+        sel.append(i)
+        dmin = np.minimum(dmin, np.linalg.norm(points_n3 - points_n3[i], axis=1))
+    return np.array(sel, np.int64)
+
+
+def set_aside_inconsistent(data, frac: float, landmark_subset: np.ndarray | None = None, lm_min_vis: float = 0.2):
+    """``data`` (FitData) with the weights of inconsistent views at 0 for those frames, and a
+    summary {camera: {person: {"keypoints": frames, "landmarks": frames}}} of what was set aside.
+
+    Keypoints and hand points go where BlazePose's body points miss the consensus
+    (``inconsistent_views``); the landmarks with them only where they too are off it: the
+    ``landmark_subset``'s landmarks (visibility above ``lm_min_vis``) more than ``frac`` / 4 from
+    the consensus pair's triangulation (a keypoint-guided network follows BlazePose off the
+    person; landmarks from elsewhere, or too few seen to tell, stay). Without a subset, the
+    landmarks go with the keypoints. The data is returned as it is without keypoints, with fewer
+    than three cameras or ``frac`` 0."""
     if not data.has_keypoints or frac <= 0 or len(data.cameras) < 3:
         return data, {}
-    flags = inconsistent_views(data.rig, data.kp_xy, data.kp_vis, data.kp_size, frac)
+    E = keypoint_errors(data.rig, data.kp_xy, data.kp_vis, data.kp_size)
+    best, n_best = consensus(E, frac)
+    flags = (at_pair(E, best) > frac) & (n_best >= 2)[None]
     if not flags.any():
         return data, {}
-    keep = (~flags).astype(np.float32)
-    vis = data.vis * keep[..., None]
-    kp_vis = data.kp_vis * keep[..., None]
-    hand_vis = None if data.hand_vis is None else data.hand_vis * keep[..., None]
-    summary = {c: {str(p): int(flags[ci, pi].sum()) for pi, p in enumerate(data.person_ids) if flags[ci, pi].any()}
+    lm_flags = flags
+    if landmark_subset is not None:
+        sub = np.asarray(landmark_subset)
+        w = (data.vis[..., sub] > lm_min_vis).astype(np.float64)
+        E_lm = view_errors(data.rig, data.xy[..., sub, :].astype(np.float64), w, data.kp_size.astype(np.float64))
+        lm_flags = flags & (at_pair(E_lm, best) > 0.25 * frac)  # NaN (too few landmarks seen) stays
+    kp_keep = (~flags).astype(np.float32)[..., None]
+    vis = data.vis * (~lm_flags).astype(np.float32)[..., None]
+    hand_vis = None if data.hand_vis is None else data.hand_vis * kp_keep
+    summary = {c: {str(p): {"keypoints": int(flags[ci, pi].sum()), "landmarks": int(lm_flags[ci, pi].sum())}
+                   for pi, p in enumerate(data.person_ids) if flags[ci, pi].any()}
                for ci, c in enumerate(data.cameras) if flags[ci].any()}
-    return dataclasses.replace(data, vis=vis, kp_vis=kp_vis, hand_vis=hand_vis), summary
+    return dataclasses.replace(data, vis=vis, kp_vis=data.kp_vis * kp_keep, hand_vis=hand_vis), summary

@@ -208,16 +208,35 @@ def components(mask: np.ndarray, min_area: int, link_px: int = 0) -> list[np.nda
 
 
 # ---- one blob, several people ----------------------------------------------------------
+def body_axes(preds: list[np.ndarray], min_px: int = 20) -> np.ndarray | None:
+    """(K, 2) x of each predicted mask's vertical axis (the median column of its lower 45 %: hips
+    and legs, which clothes tell apart more often than shirts) and that part's width (10-90 %
+    of its columns); None if a prediction has fewer than ``min_px`` pixels."""
+    out = []
+    for p in preds:
+        yy, xx = np.nonzero(p)
+        if len(yy) < min_px:
+            return None
+        low = xx[yy >= np.percentile(yy, 55)]
+        out.append((np.median(low), np.percentile(low, 90) - np.percentile(low, 10)))
+    return np.array(out, np.float64)
+
+
 def split_component(comp: np.ndarray, preds: list[np.ndarray], hists: list[np.ndarray], cidx: np.ndarray,
-                    colour_weight: float, smooth_px: float = 0.0) -> tuple[list[np.ndarray], list[float]]:
+                    colour_weight: float, smooth_px: float = 0.0, axis_weight: float = 0.0,
+                    axis_separation: float = 1.0) -> tuple[list[np.ndarray], list[float]]:
     """Share a component's pixels among the predicted masks of the tracks that claim it.
 
     Each pixel goes to the track maximising -distance to its prediction (in units of a tenth of
     the prediction's size) + colour_weight * log colour likelihood under its histogram, averaged over
     a Gaussian neighbourhood of ``smooth_px`` (one pixel's colour is weak evidence: a shirt's
     shadowed fold can match the other person's trousers, and unsmoothed choices fray the boundary,
-    which the next frame's prediction then carries forward). Returns the part per track and its
-    mean posterior (a score)."""
+    which the next frame's prediction then carries forward). With ``axis_weight`` > 0 and the
+    claimants standing apart (their ``body_axes`` at least ``axis_separation`` widths apart), each
+    pixel's horizontal distance to a track's axis counts too, in the same units as the distance
+    to its prediction: two people whose shirts match (the colour cannot tell) keep their upper
+    bodies above their own legs, where the prediction alone let one drift onto the other. Returns
+    the part per track and its mean posterior (a score)."""
     ys, xs = np.nonzero(comp)
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     pad = 4
@@ -226,10 +245,18 @@ def split_component(comp: np.ndarray, preds: list[np.ndarray], hists: list[np.nd
     sub = comp[y0:y1, x0:x1]
     py, px = np.nonzero(sub)
     wsum_hw = cv2.GaussianBlur(sub.astype(np.float32), (0, 0), smooth_px) if smooth_px >= 0.5 else None
+    axes = body_axes(preds) if axis_weight > 0 and len(preds) > 1 else None
+    if axes is not None:
+        gap = min(abs(axes[i, 0] - axes[j, 0]) / max(0.5 * (axes[i, 1] + axes[j, 1]), 1.0)
+                  for i in range(len(axes)) for j in range(i + 1, len(axes)))
+        if gap < axis_separation:  # one behind the other: the axes say nothing about who is who
+            axes = None
     scores = []
-    for p, h in zip(preds, hists):
+    for k, (p, h) in enumerate(zip(preds, hists)):
         ps = p[y0:y1, x0:x1]
         dist = cv2.distanceTransform((~ps).astype(np.uint8), cv2.DIST_L2, 3)[py, px]
+        if axes is not None:
+            dist = dist + axis_weight * np.abs(x0 + px - axes[k, 0])
         size = max(np.sqrt(max(p.sum(), 1.0)), 4.0)
         if h is not None:
             col_hw = np.log(h[cidx[y0:y1, x0:x1]]).astype(np.float32)

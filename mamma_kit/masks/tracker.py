@@ -238,7 +238,8 @@ class Tracker:
                 pure.add(k)
             else:
                 parts, conf = split_component(c, [preds[k] for k in who], [self.tracks[k].hist for k in who], cidx,
-                                              s.colour_weight, s.colour_smooth_frac * self.h)
+                                              s.colour_weight, s.colour_smooth_frac * self.h, s.axis_weight,
+                                              s.axis_separation)
                 for k, m, sc in zip(who, parts, conf):
                     if m.sum() < s.occluded_frac * pred_area[k]:
                         continue  # occluded: coasts on its prediction

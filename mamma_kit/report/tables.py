@@ -205,7 +205,8 @@ def fit_report_tables(rep: dict) -> list[TableSpec]:
     span = rep.get("time_span_s") or [None, None]
     st = rep.get("stage_stats", {})
     aside = (rep.get("views_set_aside") or {}).get("frames") or {}
-    extra = [(["camera", "person", "frames"], [[c, p, n] for c, ps in aside.items() for p, n in ps.items()],
+    extra = [(["camera", "person", "frames: keypoints", "landmarks"],
+              [[c, p, n.get("keypoints"), n.get("landmarks")] for c, ps in aside.items() for p, n in ps.items()],
               "views set aside: their keypoints missed the other views' consensus (fitting/views.py)")] if aside else []
     return [
         (["fit", "value"], [["body model", rep.get("body_model")], ["cameras", rep.get("cameras")],
