@@ -142,7 +142,8 @@ class FitConfig:
     keypoint_gamma: float = 2.0
     landmark_weight: float = 1.0  # 0: keypoints alone (benchmarks)
     # a view whose body keypoints miss the other views' consensus by more than this fraction of the
-    # person's size there is set aside for that frame, landmarks too (fitting/views.py; 0 = off)
+    # person's size there loses its keypoints for that frame, and its landmarks where they miss it
+    # too (fitting/views.py; 0 = off)
     view_outlier_frac: float = 0.1
 
     def prior_sigma(self) -> np.ndarray:
@@ -299,7 +300,8 @@ class Fitter:
     def __init__(self, model, data: FitData, cfg: FitConfig | None = None):
         self.model = model
         self.cfg = cfg or FitConfig()
-        # views whose keypoints miss the others' consensus weigh 0 there: {camera: {person: frames}}
+        # views whose keypoints miss the others' consensus weigh 0 there:
+        # {camera: {person: {"keypoints": frames, "landmarks": frames}}}
         lm_rest = model.v_template.numpy()[model.landmark_ids]
         self.data, self.set_aside = set_aside_inconsistent(data, self.cfg.view_outlier_frac,
                                                            spread_subset(lm_rest, CONSENSUS_LANDMARKS))

@@ -4,7 +4,7 @@ A keypoint detector that loses a person behind someone else, or follows the wron
 view gives points that are self-consistent in that image but meet no ray of the other views; and
 the keypoint-guided landmarks of that crop follow them. The fit's robust losses only down-weight
 points one by one, and a whole view that is wrong together still pulls (the demo: one dancer
-partly behind the other in cam3 for 40 frames, BlazePose 16-27 % of her height off there).
+partly behind the other in cam3 for about 40 frames, where BlazePose loses her).
 
 Per person and frame, each pair of views that both see a body point triangulates the body points
 (``CONSENSUS_POINTS``); every view's median reprojection error under that pair, as a fraction of
@@ -71,24 +71,20 @@ def at_pair(E: np.ndarray, best: np.ndarray) -> np.ndarray:
     return np.take_along_axis(E, best[None, None], 0)[0]
 
 
-def keypoint_errors(rig: Rig, kp_xy: np.ndarray, kp_vis: np.ndarray, kp_size: np.ndarray,
-                    min_vis: float = 0.5) -> np.ndarray:
-    """``view_errors`` of BlazePose's body points (``CONSENSUS_POINTS`` seen above ``min_vis``)."""
+def inconsistent_views(rig: Rig, kp_xy: np.ndarray, kp_vis: np.ndarray, kp_size: np.ndarray,
+                       frac: float, min_vis: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Views whose body points (``CONSENSUS_POINTS`` seen above ``min_vis``) miss the consensus of
+    the others by more than ``frac`` of the person's size (see module doc): flags (C, P, T) bool and
+    the consensus pair (P, T) (an index into ``view_errors``' pairs). kp_xy (C, P, T, 33, 2),
+    kp_vis (C, P, T, 33), kp_size (C, P, T)."""
+    C, P, T = kp_vis.shape[:3]
+    if C < 3 or frac <= 0:
+        return np.zeros((C, P, T), bool), np.zeros((P, T), np.int64)
     pts = list(CONSENSUS_POINTS)
     w = (kp_vis[..., pts] > min_vis).astype(np.float64)
-    return view_errors(rig, kp_xy[..., pts, :].astype(np.float64), w, kp_size.astype(np.float64))
-
-
-def inconsistent_views(rig: Rig, kp_xy: np.ndarray, kp_vis: np.ndarray, kp_size: np.ndarray,
-                       frac: float, min_vis: float = 0.5) -> np.ndarray:
-    """(C, P, T) bool: views whose body points miss the consensus of the others by more than
-    ``frac`` of the person's size (see module doc). kp_xy (C, P, T, 33, 2), kp_vis (C, P, T, 33),
-    kp_size (C, P, T)."""
-    if kp_vis.shape[0] < 3 or frac <= 0:
-        return np.zeros(kp_vis.shape[:3], bool)
-    E = keypoint_errors(rig, kp_xy, kp_vis, kp_size, min_vis)
+    E = view_errors(rig, kp_xy[..., pts, :].astype(np.float64), w, kp_size.astype(np.float64))
     best, n_best = consensus(E, frac)
-    return (at_pair(E, best) > frac) & (n_best >= 2)[None]  # NaN (too little seen) compares False
+    return (at_pair(E, best) > frac) & (n_best >= 2)[None], best  # NaN (too little seen) compares False
 
 
 def spread_subset(points_n3: np.ndarray, n: int) -> np.ndarray:
@@ -115,9 +111,7 @@ def set_aside_inconsistent(data, frac: float, landmark_subset: np.ndarray | None
     than three cameras or ``frac`` 0."""
     if not data.has_keypoints or frac <= 0 or len(data.cameras) < 3:
         return data, {}
-    E = keypoint_errors(data.rig, data.kp_xy, data.kp_vis, data.kp_size)
-    best, n_best = consensus(E, frac)
-    flags = (at_pair(E, best) > frac) & (n_best >= 2)[None]
+    flags, best = inconsistent_views(data.rig, data.kp_xy, data.kp_vis, data.kp_size, frac)
     if not flags.any():
         return data, {}
     lm_flags = flags

@@ -25,8 +25,9 @@ class BuiltinSettings:
     colour_smooth_frac: float = 0.006  # splitting touching people: colour evidence over this fraction of the height
     # splitting people who stand apart (axes >= axis_separation widths apart): a pixel's horizontal
     # distance to each one's axis (segment.body_axes) weighs this much beside its distance to the
-    # prediction (0: off). The duo's renders, masks IoU 0 -> 0.5: seed 11 (matching black shirts)
-    # 0.722 -> 0.852, demo 0.880 -> 0.894, seed 7 0.883 -> 0.911 (benchmarks/masks_quality.py for crowds)
+    # prediction (0: off). The duo's renders, masks IoU with axis_weight 0 -> 0.5: seed 11 (matching
+    # black shirts) 0.722 -> 0.852, demo 0.880 -> 0.894, seed 7 0.883 -> 0.911; the crowds about even
+    # (benchmarks/masks_quality.py)
     axis_weight: float = 0.5
     axis_separation: float = 1.0
     max_lost: int = 45  # frames a lost track can be re-identified
