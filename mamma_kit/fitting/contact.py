@@ -425,8 +425,12 @@ def point_rows(kin, pos: torch.Tensor, n: int, u: torch.Tensor, vid: torch.Tenso
     col = pos[kin.infl[vid]]  # (k, V, M) active position or -1
     ok = col >= 0
     kk = torch.arange(k)[:, None, None].expand_as(col)
+    # index_add_ on the flat rows: it adds the entries that share a slot in index order (torch's
+    # index_put_(accumulate=True) on the CPU adds them in whatever order its threads reach them,
+    # which changed the fit in the last bits from run to run)
+    flat = A.view(-1)
     for dim in range(3):
-        A.index_put_((kk[ok], 3 * col[ok] + dim), val[..., dim][ok].to(A.dtype), accumulate=True)
+        flat.index_add_(0, kk[ok] * n + 3 * col[ok] + dim, val[..., dim][ok].to(A.dtype))
     A[:, -3:] += nrm * coef.sum(1, keepdim=True)
     return A
 
