@@ -171,10 +171,9 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
     elif stage == "landmarks":
         from mamma_kit.landmarks.stage import run_landmarks
 
-        if opts.get("threads"):
-            import torch
-
-            torch.set_num_threads(int(opts["threads"]))
+        if "threads" in opts:
+            log.warn("capture.toml [settings.landmarks] threads no longer applies: the network's units run on "
+                     "one thread each, side by side (mamma-kit --workers N sets how many)")
         res = run_landmarks(ws, source=opts.get("source", "net"), weights=opts.get("weights"), arch=opts.get("arch"),
                             batch=int(opts.get("batch", 8)), device=opts.get("device", "cpu"),
                             noise=str(opts.get("noise", "0")), outliers=float(opts.get("outliers", 0.0)),
@@ -212,6 +211,9 @@ def capture_to_smplx(workspace: str | Path, from_stage: str | None = None, to_st
                      force: bool = False, progress: bool = True) -> dict:
     """Run the chain on a workspace; returns the run summary (per stage: status, seconds, reason,
     key facts, and the stage's own summary)."""
+    from mamma_kit.core.reproducible import configure
+
+    configure()  # same inputs and settings, same numbers (core/reproducible.py)
     ws = Workspace(workspace)
     cap = ws.load_capture()
     stages = stage_range(from_stage, to_stage)

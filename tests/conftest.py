@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 
 from mamma_kit.core.camera import Camera, Rig, rodrigues
+from mamma_kit.core.reproducible import configure
 from mamma_kit.core.tracks import LandmarkTracks
+
+# the tests compute as the CLI does: deterministic kernels, one BLAS thread (an operation with
+# no deterministic form fails here first)
+configure()
 
 
 class CliResult:
@@ -88,3 +93,19 @@ def landmark_view(cam, X, times, perm=None, noise=0.0, rng=None):
 @pytest.fixture
 def ring_rig() -> Rig:
     return make_ring_rig()
+
+
+@pytest.fixture(scope="session")
+def ray_session():
+    """One Ray instance on this machine's loopback address for the whole session (starting one
+    costs seconds); skipped where ray is not installed."""
+    import os
+
+    os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # before ray's import: 127.0.0.1 only
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    ray = pytest.importorskip("ray", reason="ray is not installed (pip install 'mamma-kit[ray]')")
+    if not ray.is_initialized():
+        ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="warning")
+    assert ray.util.get_node_ip_address() == "127.0.0.1"
+    yield ray
+    ray.shutdown()

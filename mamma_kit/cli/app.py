@@ -23,6 +23,9 @@ from mamma_kit.core.errors import UserError
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, turning user errors into one line + exit 2."""
+    from mamma_kit.core.reproducible import configure
+
+    configure()  # same inputs, same numbers: deterministic kernels, one BLAS thread
     try:
         app(args=argv, prog_name="mamma-kit", standalone_mode=True)
     except UserError as e:

@@ -47,7 +47,7 @@ def fit_cmd(
     view_outliers: float = typer.Option(0.1, "--view-outliers", min=0.0, help="Set a view aside for a frame where "
                                         "its keypoints miss the other views' consensus by more than this fraction of "
                                         "the person's size (0: never; needs 3 or more cameras)."),
-    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default: torch's)."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads for torch (default: torch's); the results do not depend on it."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,

@@ -21,7 +21,7 @@ def keypoints_cmd(
                                  "them by the points found and read those people again on their new masks."),
     hands: bool = typer.Option(True, "--hands/--no-hands", help="Read each person's hands too (MediaPipe's hand "
                                "landmarker, 21 points a hand, on the hands BlazePose finds); the fit uses them."),
-    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="LiteRT threads (default: up to 2)."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="LiteRT threads (default: up to 2); the results do not depend on it."),
     pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="Write report/keypoints/<cam>.png."),
     force: bool = typer.Option(False, "--force", help="Recompute even if inputs are unchanged."),
     unit_frames: Optional[int] = typer.Option(None, "--unit-frames", min=0, help="Frames per unit of work "

@@ -22,8 +22,6 @@ def landmarks_cmd(
                                                             "embedded-single, official, ..."),
     batch: int = typer.Option(8, "--batch", min=1, help="Crops per network batch."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
-    threads: int = typer.Option(0, "--threads", min=0, help="torch CPU threads (0 = torch's default; 1 is faster "
-                                                            "on a machine busy with other jobs)."),
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated subset of cameras."),
     source: str = typer.Option("net", "--source", help="net (MammaNet) or gt (noisy ground truth of a synthetic "
                                                        "workspace)."),
@@ -48,7 +46,9 @@ def landmarks_cmd(
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
-    """Dense landmarks (xy, sigma, visibility, contact, floor contact) for every tracked person and frame."""
+    """Dense landmarks (xy, sigma, visibility, contact, floor contact) for every tracked person and frame.
+    The network's units (a camera, or --unit-frames of it) run side by side, one thread each (the
+    root --workers sets how many): the numbers do not depend on the machine's cores or load."""
     setup(quiet, json_out)
     if describe:
         from mamma_kit.landmarks.config import DEFAULT_ARCH
@@ -68,10 +68,6 @@ def landmarks_cmd(
 
         if not torch.cuda.is_available():
             raise UserError("--device cuda but torch sees no CUDA device", "use --device cpu")
-    if threads:
-        import torch
-
-        torch.set_num_threads(threads)
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.landmarks.stage import run_landmarks
 

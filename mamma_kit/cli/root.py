@@ -33,8 +33,13 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
           executor: str = typer.Option(None, "--executor", metavar="local|ray",
                                        help="Where units of work run: local processes, or Ray (MAMMA_KIT_RAY_ADDRESS, "
                                             "else a Ray instance here). Default: MAMMA_KIT_EXECUTOR, else "
-                                            "capture.toml's \\[settings] executor, else local.")) -> None:
+                                            "capture.toml's \\[settings] executor, else local."),
+          workers: int = typer.Option(None, "--workers", min=1, metavar="N",
+                                      help="Units of work side by side (local processes, or Ray tasks in flight). "
+                                           "Default: MAMMA_KIT_WORKERS, else one per CPU. The results do not "
+                                           "depend on it.")) -> None:
     """mamma-kit: from phone videos and a printed ChArUco board to SMPL-X bodies."""
-    from mamma_kit.core.executor import set_executor
+    from mamma_kit.core.executor import set_executor, set_workers
 
     set_executor(executor)
+    set_workers(workers)

@@ -11,8 +11,11 @@ in order. Which engine runs them is process-wide configuration:
   names a running cluster, else a Ray instance on this machine (127.0.0.1) is started.
 
 The executor is chosen by ``--executor`` (CLI), else MAMMA_KIT_EXECUTOR, else capture.toml's
-``[settings] executor``, else local. ``fn`` and the units must pickle; the unit boundaries are
-the caller's, never the engine's, so results do not depend on the executor.
+``[settings] executor``, else local; how many units run side by side by ``--workers``, else
+MAMMA_KIT_WORKERS, else one per CPU. ``fn`` and the units must pickle; the unit boundaries are
+the caller's, never the engine's, and every process that runs a unit computes deterministically
+(core/reproducible.py: a worker is configured like the CLI), so results depend neither on the
+executor nor on the number of workers or threads, nor on the order units finish in.
 """
 
 from __future__ import annotations
@@ -27,17 +30,34 @@ U = TypeVar("U")
 R = TypeVar("R")
 
 EXECUTORS = ("local", "ray")
-_chosen: dict[str, str | None] = {"executor": None, "address": None}  # set by --executor / a run
+_chosen: dict = {"executor": None, "address": None, "workers": None}  # set by --executor / --workers / a run
 # set in a Ray worker process (core/executor_ray.py): the units a unit starts run in its process
 INSIDE_UNIT_ENV = "MAMMA_KIT_INSIDE_UNIT"
 
 
 def default_workers(n_units: int, workers: int | None = None) -> int:
-    """Workers for n units: ``workers``, else MAMMA_KIT_WORKERS, else one per CPU."""
+    """Workers for n units: ``workers``, else --workers, else MAMMA_KIT_WORKERS, else one per CPU."""
     if workers is None:
-        env = os.environ.get("MAMMA_KIT_WORKERS")
-        workers = int(env) if env else (os.cpu_count() or 1)
+        workers = _chosen["workers"] or configured_workers()
     return max(1, min(int(workers), n_units))
+
+
+def configured_workers() -> int:
+    """MAMMA_KIT_WORKERS, else one per CPU."""
+    env = os.environ.get("MAMMA_KIT_WORKERS")
+    if env:
+        try:
+            if int(env) >= 1:
+                return int(env)
+        except ValueError:
+            pass
+        raise UserError(f"MAMMA_KIT_WORKERS={env!r} is not a positive whole number", "set it to e.g. 2, or unset it")
+    return os.cpu_count() or 1
+
+
+def set_workers(n: int | None) -> None:
+    """Units side by side for this process (``None``: back to MAMMA_KIT_WORKERS / one per CPU)."""
+    _chosen["workers"] = None if n is None else max(1, int(n))
 
 
 # frames per unit for the per-camera stages that can split a video (keypoints, landmarks);
@@ -106,7 +126,11 @@ def executor_for_run(settings: dict) -> Iterator[str]:
 
 
 def _init_worker(quiet: bool) -> None:
-    # one torch thread per process: the processes already fill the cores
+    # one torch thread per process: the processes already fill the cores (the numbers are the
+    # same either way: configure() makes every kernel deterministic)
+    from mamma_kit.core.reproducible import configure
+
+    configure()
     try:
         import torch
 
@@ -131,7 +155,8 @@ def run_units(fn: Callable[[U], R], units: Iterable[U], workers: int | None = No
         from mamma_kit.core import log
         from mamma_kit.core.executor_ray import run_units_ray
 
-        return run_units_ray(fn, items, workers, address=ray_address(), quiet=log.is_quiet())
+        return run_units_ray(fn, items, workers, address=ray_address(), quiet=log.is_quiet(),
+                             cpus=_chosen["workers"] or configured_workers())
     n = 1 if threaded else default_workers(len(items), workers)
     if n <= 1:
         return [fn(u) for u in items]

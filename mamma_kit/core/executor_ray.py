@@ -40,7 +40,7 @@ def loopback_only() -> None:
     os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 
 
-def _init_ray(address: str | None):
+def _init_ray(address: str | None, cpus: int | None = None):
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if not address:
         loopback_only()
@@ -52,10 +52,8 @@ def _init_ray(address: str | None):
     if not ray.is_initialized():
         if address:  # a running cluster: every node needs this mamma-kit installed
             ray.init(address=address, logging_level="warning")
-        else:  # a Ray instance on this machine, without a dashboard
-            env = os.environ.get("MAMMA_KIT_WORKERS")
-            ray.init(address="local", num_cpus=int(env) if env else None, include_dashboard=False,
-                     logging_level="warning")
+        else:  # a Ray instance on this machine, without a dashboard, with the CPUs given
+            ray.init(address="local", num_cpus=cpus, include_dashboard=False, logging_level="warning")
     if "task" not in _remote:
         _remote["task"] = ray.remote(_run_one)
     return ray
@@ -64,6 +62,9 @@ def _init_ray(address: str | None):
 def _run_one(quiet: bool, fn_bytes: bytes, template: Any, *shared_bytes: bytes) -> tuple:
     """One unit in a Ray worker: ("ok", result) or ("user-error", message, hint)."""
     os.environ[INSIDE_UNIT_ENV] = "1"  # units this unit starts run here, in order
+    from mamma_kit.core.reproducible import configure
+
+    configure()  # the same kernels as in the CLI's process: the same numbers on every node
     try:  # one torch thread per task, as in the local pool: the tasks fill the cores
         import torch
 
@@ -113,10 +114,11 @@ def _label(fn: Callable) -> str:
 
 
 def run_units_ray(fn: Callable, items: Sequence, workers: int | None = None, address: str | None = None,
-                  quiet: bool = False) -> list:
+                  quiet: bool = False, cpus: int | None = None) -> list:
     """``[fn(u) for u in items]`` as Ray tasks, at most ``workers`` in flight (None: all), on the
-    cluster at ``address`` (None: a Ray instance on this machine, started if none runs)."""
-    ray = _init_ray(address)
+    cluster at ``address`` (None: a Ray instance on this machine with ``cpus`` CPUs, started if
+    none runs)."""
+    ray = _init_ray(address, cpus)
     from ray.exceptions import RayError
 
     task = _remote["task"].options(max_retries=RETRIES, retry_exceptions=True)

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from mamma_kit.body.skeleton import NUM_JOINTS
+from mamma_kit.core.reproducible import one_thread
 from mamma_kit.fitting.kinematics import (CDTYPE, DTYPE, BodyKinematics, Posed, so3_exp, so3_left_jacobian_inv,
                                           so3_log)
 from mamma_kit.fitting.projection import RigTensors
@@ -472,11 +473,12 @@ class GaussNewton:
         diag = torch.diagonal(N, dim1=1, dim2=2)
         scale = diag.mean(1, keepdim=True).clamp(min=1e-9)
         Nd_ = N + torch.diag_embed(mu[:, None] * diag + 1e-9 * scale + 1e-12)
-        Lc, info = torch.linalg.cholesky_ex(Nd_)
-        bad = info > 0
-        if bool(bad.any()):
-            Nd_[bad] = N[bad] + torch.diag_embed(1e3 * diag[bad] + scale[bad])
-            Lc[bad] = torch.linalg.cholesky(Nd_[bad])
+        with one_thread():  # LAPACK's blocked factorisation sums in an order that follows its threads
+            Lc, info = torch.linalg.cholesky_ex(Nd_)
+            bad = info > 0
+            if bool(bad.any()):
+                Nd_[bad] = N[bad] + torch.diag_embed(1e3 * diag[bad] + scale[bad])
+                Lc[bad] = torch.linalg.cholesky(Nd_[bad])
         return Lc
 
     def solve_step(self, lin: Linearisation, Lc: torch.Tensor, st: State,
@@ -486,21 +488,24 @@ class GaussNewton:
         cfg = self.cfg
         P, T = st.transl.shape[:2]
         n, A = self.n, len(cfg.active)
-        if lin.shape is not None:
-            Mb = lin.shape["Mb"]
-            nb = Mb.shape[-1]
-            Y = torch.cholesky_solve(torch.cat([lin.rhs[..., None], Mb], -1), Lc)  # (B, n, 1 + nb)
-            Yg, YM = Y[..., 0], Y[..., 1:]
-            Mb_p = Mb.reshape(P, T, n, nb)
-            S = (lin.shape["Nbb"] + cfg.shape_weight * torch.eye(nb, dtype=DTYPE)
-                 - torch.einsum("ptni,ptnj->pij", Mb_p, YM.reshape(P, T, n, nb)))
-            rb = lin.shape["gb"] - cfg.shape_weight * st.betas - torch.einsum("ptni,ptn->pi", Mb_p, Yg.reshape(P, T, n))
-            Sd = S + torch.diag_embed(mu_b[:, None] * torch.diagonal(S, dim1=1, dim2=2) + 1e-9)
-            dbeta = torch.linalg.solve(Sd, rb)
-            dx = Yg - (YM @ dbeta.repeat_interleave(T, 0)[..., None])[..., 0]
-        else:
-            dbeta = None
-            dx = torch.cholesky_solve(lin.rhs[..., None], Lc)[..., 0]
+        # the triangular solves and the shape's long contractions (over every frame and joint) on
+        # one thread: their sums' order would follow the thread count
+        with one_thread():
+            if lin.shape is not None:
+                Mb = lin.shape["Mb"]
+                nb = Mb.shape[-1]
+                Y = torch.cholesky_solve(torch.cat([lin.rhs[..., None], Mb], -1), Lc)  # (B, n, 1 + nb)
+                Yg, YM = Y[..., 0], Y[..., 1:]
+                Mb_p = Mb.reshape(P, T, n, nb)
+                S = (lin.shape["Nbb"] + cfg.shape_weight * torch.eye(nb, dtype=DTYPE)
+                     - torch.einsum("ptni,ptnj->pij", Mb_p, YM.reshape(P, T, n, nb)))
+                rb = lin.shape["gb"] - cfg.shape_weight * st.betas - torch.einsum("ptni,ptn->pi", Mb_p, Yg.reshape(P, T, n))
+                Sd = S + torch.diag_embed(mu_b[:, None] * torch.diagonal(S, dim1=1, dim2=2) + 1e-9)
+                dbeta = torch.linalg.solve(Sd, rb)
+                dx = Yg - (YM @ dbeta.repeat_interleave(T, 0)[..., None])[..., 0]
+            else:
+                dbeta = None
+                dx = torch.cholesky_solve(lin.rhs[..., None], Lc)[..., 0]
         dx = dx.reshape(P, T, n)
         if cfg.max_step is not None:  # trust region: shrink a block's step to the largest allowed move
             rmax = dx[..., :3 * A].reshape(P, T, A, 3).norm(dim=-1).amax(-1) / cfg.max_step[0]

@@ -108,7 +108,9 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
     _PREDICTORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
     # units: (camera, frame range); one range per camera unless unit_frames (or MAMMA_KIT_UNIT_FRAMES)
-    # splits it (network cameras only). The network uses every core, so locally they run here in order
+    # splits it (network cameras only). A network unit computes on one thread (its convolutions' sums
+    # would follow the thread count: core/reproducible.py), so the units run side by side, one process
+    # per core; the cheap ground-truth units run here in order
     units = [(cam, r) for cam in todo for r in
              ([None] if source == "gt" else frame_ranges(track_frame_count(ws.mask_file(cam)),
                                                            unit_frames))]
@@ -116,7 +118,7 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
                    noise=noise, outliers=outliers, seed=seed, loaded=loaded, device=device, batch=batch,
                    refiner=refiner, contact=contact_loaded)
     parts: dict[str, list] = {cam: [] for cam in todo}
-    for (cam, frames), (summ, lt) in zip(units, run_units(unit, units, threaded=True)):
+    for (cam, frames), (summ, lt) in zip(units, run_units(unit, units, threaded=source == "gt")):
         parts[cam].append((frames, lt, summ))
     for cam in todo:
         if len(parts[cam]) == 1:  # a whole camera: its unit wrote it (so a stopped run keeps it)
@@ -187,6 +189,7 @@ def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, sourc
 
         lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
         return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
+    from mamma_kit.core.reproducible import one_thread
     from mamma_kit.core.tracks import KeypointTracks, MaskTracks
     from mamma_kit.landmarks.inference import Predictor, run_camera
 
@@ -200,8 +203,9 @@ def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, sourc
     use_kp = loaded.config.keypoints_in or (refiner is not None and ws.keypoints_file(cam).is_file())
     kt = KeypointTracks.load(ws.keypoints_file(cam)) if use_kp else None
     whole = frames == (0, len(masks.frame_times))
-    lt, summ = run_camera(pred, cam, masks, cap.cameras[cam].video, batch, keypoints=kt,
-                          frame_range=None if whole else frames, hands=refiner, contact=pred_contact)
+    with one_thread():  # the same bits whatever the cores, the executor or the other units
+        lt, summ = run_camera(pred, cam, masks, cap.cameras[cam].video, batch, keypoints=kt,
+                              frame_range=None if whole else frames, hands=refiner, contact=pred_contact)
     if whole:
         return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
     return summ, lt
