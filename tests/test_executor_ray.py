@@ -1,8 +1,7 @@
 """run_units on Ray (issue 25): a Ray instance on the loopback address of this machine runs the
 units; results equal the local executor's, what units share goes to the object store once, a
 UserError raised in a unit comes back unchanged, and a unit that fails is retried once and then
-named in one UserError. End to end: synth + track + landmarks + fit of the tiny recipe through
-Ray give the same files as the local executor.
+named in one UserError. (End to end, Ray against the local executor: tests/test_reproducible.py.)
 """
 
 from __future__ import annotations
@@ -21,19 +20,17 @@ from mamma_kit.core import executor  # noqa: E402
 from mamma_kit.core.errors import UserError  # noqa: E402
 
 
+# the units below are this test module's functions: send them by value, the workers cannot
+# import tests/
+ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
 @pytest.fixture(scope="module")
-def ray_local():
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    # the units below are this test module's functions: send them by value, the workers
-    # cannot import tests/
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    if not ray.is_initialized():
-        ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="warning")
-    assert ray.util.get_node_ip_address() == "127.0.0.1"
+def ray_local(ray_session):
+    """Ray (conftest's instance on 127.0.0.1) as this module's executor."""
     executor.set_executor("ray")
     yield ray
     executor.set_executor(None)
-    ray.shutdown()
 
 
 def _scaled_sum(unit, table_n3):
@@ -119,61 +116,6 @@ def test_executor_settings(monkeypatch):
         assert executor.executor_name() == "ray"
     finally:
         executor.set_executor(*saved)
-
-
-def _arrays(root) -> dict[str, np.ndarray]:
-    """Every numeric array of the workspace's .npz files (masks, landmarks, fits, ground truth)."""
-    out = {}
-    for f in sorted(root.rglob("*.npz")):
-        if ".cache" in f.parts:
-            continue
-        with np.load(f, allow_pickle=False) as d:
-            for k in d.files:
-                if d[k].dtype.kind in "biufc":
-                    out[f"{f.relative_to(root)}:{k}"] = d[k]
-    return out
-
-
-def _tiny_chain(root, name: str, monkeypatch) -> dict:
-    """synth + track + landmarks (noisy ground truth) + fit (stages 1-2, two chunks) on one executor;
-    the local one with one worker, in this process (the same units in the same order)."""
-    import torch
-
-    from mamma_kit.core.workspace import Workspace
-    from mamma_kit.evaluation.fit import install_gt_calibration_and_timing
-    from mamma_kit.fitting.stage import fit_workspace
-    from mamma_kit.fitting.stages import FitConfig
-    from mamma_kit.landmarks.stage import run_landmarks
-    from mamma_kit.masks.stage import run_track
-    from mamma_kit.synth.capture import synthesize
-
-    saved, threads = executor.chosen(), torch.get_num_threads()
-    executor.set_executor(name)
-    monkeypatch.setenv("MAMMA_KIT_WORKERS", "1" if name == "local" else "2")
-    torch.set_num_threads(1)  # as in a worker: the fit's sums in the same order on both executors
-    try:
-        synthesize("tiny", root, board=False)
-        ws = Workspace(root)
-        install_gt_calibration_and_timing(ws)
-        run_track(ws, backend="gt", pictures=False)
-        run_landmarks(ws, source="gt", noise="1.2%", outliers=0.05, seed=0)
-        # 15 frames in chunks of 12 with overlap 4: a shape fit and two chunks cross-faded
-        rep = fit_workspace(ws, stages=2, config=FitConfig(chunk=12, overlap=4))
-    finally:
-        executor.set_executor(*saved)
-        torch.set_num_threads(threads)
-    assert len(rep["chunks"]) == 2, rep["chunks"]
-    return _arrays(root)
-
-
-@pytest.mark.slow
-def test_tiny_chain_on_ray_equals_local(ray_local, tmp_path, monkeypatch):
-    local = _tiny_chain(tmp_path / "local", "local", monkeypatch)
-    on_ray = _tiny_chain(tmp_path / "ray", "ray", monkeypatch)
-    assert set(local) == set(on_ray) and any(k.startswith("smplx/") for k in local)
-    assert any(k.startswith("masks/") for k in local) and any(k.startswith("landmarks/") for k in local)
-    for k in local:
-        assert np.array_equal(local[k], on_ray[k], equal_nan=True), k
 
 
 def test_cli_executor_option(cli, tmp_path):

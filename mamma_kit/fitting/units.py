@@ -7,51 +7,39 @@ the chunks to ``run_chunks`` (below: units of ``core/executor.run_units`` with t
 joins their results (cross-fading the overlaps). So the chunks, their order and their joining
 are Fitter.fit's own, whatever the executor.
 
+Every unit runs the very Fitter that ``Fitter.fit`` would: the one built from the whole
+sequence (the views it set aside, its point sets), here in this process, or a copy of it
+without the sequence's data on a Ray worker, never one rebuilt from a chunk: a chunk's own
+consensus of views or its own hands would be another fit.
+
 A unit reads only its chunk's slice of the fit data (C cameras x P people x its frames x L
 landmarks) and returns its ChunkResult (the chunk's solver State, snapshots, stats).
 """
 
 from __future__ import annotations
 
+import copy
 from functools import partial
 
 import numpy as np
 
 from mamma_kit.fitting.stages import ChunkResult, Fitter, FitResult
 
-_FITTERS: dict = {}  # one Fitter per (model, config, cameras) and process, as Fitter.fit has one
 
-
-def _fitter_key(model, cfg, d) -> tuple:
-    return (id(model), id(cfg), tuple(d.cameras), bool(d.has_keypoints))
-
-
-def _fitter_for(model, cfg, d) -> Fitter:
-    key = _fitter_key(model, cfg, d)
-    if key not in _FITTERS:
-        _FITTERS.clear()  # a worker's tasks each bring their own model: keep the last one only
-        _FITTERS[key] = (model, cfg, Fitter(model, d, cfg))  # model and cfg kept: their ids stay theirs
-    return _FITTERS[key][2]
-
-
-def fit_chunk_unit(chunk_data, model, cfg, betas: np.ndarray | None) -> ChunkResult:
+def fit_chunk_unit(chunk_data, fitter: Fitter, betas: np.ndarray | None) -> ChunkResult:
     """One unit: the four stages on one chunk's data with the sequence's shape ``betas`` (P, 16)."""
-    return _fitter_for(model, cfg, chunk_data).fit_chunk(chunk_data, betas)
+    return fitter.fit_chunk(chunk_data, betas)
 
 
 def fit_in_units(fitter: Fitter) -> FitResult:
     """``fitter.fit()`` with its chunks run as units of the executor (see the module docstring)."""
     from mamma_kit.core.executor import run_units
 
+    unit_fitter = copy.copy(fitter)  # fit_chunk reads its chunk, not the sequence: not sent to workers
+    unit_fitter.data = None
+
     def run_chunks(parts, betas):
-        _FITTERS.clear()
-        # units run here use this very fitter, as Fitter.fit would; a worker builds its own
-        _FITTERS[_fitter_key(fitter.model, fitter.cfg, fitter.data)] = (fitter.model, fitter.cfg, fitter)
-        try:
-            # the chunks use every core through torch: locally they run here in order, as Fitter.fit ran them
-            return run_units(partial(fit_chunk_unit, model=fitter.model, cfg=fitter.cfg, betas=betas), parts,
-                             threaded=True)
-        finally:
-            _FITTERS.clear()
+        # the chunks use every core through torch: locally they run here in order, as Fitter.fit ran them
+        return run_units(partial(fit_chunk_unit, fitter=unit_fitter, betas=betas), parts, threaded=True)
 
     return fitter.fit(run_chunks=run_chunks)
