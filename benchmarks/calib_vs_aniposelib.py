@@ -170,9 +170,9 @@ def evaluate(path: Path, gt_path: Path, fmt: str | None, pinned: bool) -> dict:
 
     gt, _ = read_calibration(gt_path)
     est = read_rig(path, fmt)
-    out = {"aligned": compare(est, gt, align=True)["worst"]}
+    out = {"aligned": compare(est, gt, align="similarity")["worst"]}
     if pinned:
-        out["world"] = compare(est, gt, align=False)["worst"]
+        out["world"] = compare(est, gt, align="none")["worst"]
     return out
 
 

@@ -78,7 +78,7 @@ def test_every_camera_calibrates_the_one_behind_as_well_as_the_others(behind_ses
     res = json.loads(s["out"])
     assert set(res["cameras"]) == set(s["rig"].names)
     est, diag = read_calibration(s["calibration"])
-    rel = compare(est, s["rig"], align=True)["cameras"]
+    rel = compare(est, s["rig"], align="similarity")["cameras"]
     # measured (worst camera): focal 0.29 %, principal point 3.7 px, rotation 0.45 deg, centre 9.8 mm
     limits = {"focal_pct": 0.5, "principal_point_px": 5.0, "rotation_deg": 0.6, "center_mm": 20.0}
     for n, e in rel.items():

@@ -41,5 +41,5 @@ def test_synchronised_session_calibrates_without_synced(tmp_path, cli):
     from mamma_kit.evaluation.calibration import compare
 
     est, _ = read_calibration(tmp_path / "c.toml")
-    rel = compare(est, rig, align=True)["worst"]
+    rel = compare(est, rig, align="similarity")["worst"]
     assert rel["focal_pct"] < 1.0 and rel["center_mm"] < 25.0 and rel["rotation_deg"] < 0.6, rel

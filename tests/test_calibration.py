@@ -118,7 +118,7 @@ def test_calibration_matches_ground_truth(calibrated, session, cli):
     r = cli("eval", session["ws"], "--json")
     assert r.code == 0, r
     ev = json.loads(r.out)["calibration"]
-    assert ev["aligned"] is False  # the floor board pinned the world frame
+    assert ev["aligned"] == "floor"  # the floor board pinned the world frame: only its yaw and place are aligned
     w = ev["worst"]
     assert w["focal_pct"] < 0.5, ev
     assert w["principal_point_px"] < 4.0, ev
@@ -260,8 +260,43 @@ def test_similarity_alignment_undoes_any_similarity(rv, t, s):
     moved = gt.transformed(rodrigues(np.array(rv)), np.array(t), s)
     back, info = align_rig(moved, gt)
     assert abs(info["scale"] - 1 / s) < 1e-6 * max(1, 1 / s)
-    res = compare(moved, gt, align=True)
+    res = compare(moved, gt, align="similarity")
     assert res["worst"]["center_mm"] < 1e-3 and res["worst"]["rotation_deg"] < 1e-5
+
+
+@settings(max_examples=30, deadline=None)
+@given(yaw=st.floats(-3.1, 3.1), shift=st.lists(st.floats(-5, 5), min_size=2, max_size=2),
+       tilt=st.floats(0.005, 0.05))
+def test_floor_alignment_undoes_the_board_place_but_not_a_tilt(yaw, shift, tilt):
+    """Where a floor board lay and how it was turned no calibration knows: after the floor
+    alignment a rig turned about Z and moved along the floor has no error left, while a tilt of
+    its up axis stays in the errors, and every reprojection figure is finite."""
+    from mamma_kit.evaluation.calibration import compare
+
+    gt = ring(4, radius=4.5, height=1.6)
+    placed = gt.transformed(rodrigues(np.array([0.0, 0.0, yaw])), np.array([*shift, 0.0]))
+    res = compare(placed, gt, align="floor")
+    assert res["aligned"] == "floor"
+    assert res["worst"]["center_mm"] < 1e-3 and res["worst"]["rotation_deg"] < 1e-5, res["worst"]
+    assert res["worst"]["reprojection_px_max"] < 1e-3 and res["worst"]["behind_camera_pct"] == 0
+    tilted = placed.transformed(rodrigues(np.array([tilt, 0.0, 0.0])), np.zeros(3))
+    res = compare(tilted, gt, align="floor")
+    assert res["worst"]["rotation_deg"] > 0.5 * np.degrees(tilt), res["worst"]
+    assert np.isfinite(res["worst"]["reprojection_px_mean"])
+
+
+def test_unaligned_reprojection_counts_points_behind_the_camera():
+    """Cameras turned half around (the same centres, looking the other way) see the test points
+    behind them: they are counted, not projected into numbers of 1e18 px."""
+    from mamma_kit.evaluation.calibration import compare
+
+    gt = ring(4, radius=4.5, height=1.6)
+    flip = np.diag([-1.0, 1.0, -1.0])  # half a turn about each camera's own vertical axis
+    turned = Rig([c.copy(R=flip @ c.R, t=-(flip @ c.R) @ c.center) for c in gt])
+    res = compare(turned, gt, align="none")
+    for cam in res["cameras"].values():
+        assert cam["behind_camera_pct"] == 100 and cam["reprojection_px_mean"] is None, cam
+    assert res["worst"]["behind_camera_pct"] == 100 and res["worst"]["reprojection_px_max"] is None
 
 
 @settings(max_examples=30, deadline=None)

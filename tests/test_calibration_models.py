@@ -103,7 +103,7 @@ def test_unsynchronised_fisheye_rig_end_to_end(fisheye_rig_data):
     assert res.diagnostics["world"]["source"] == "floor" and res.diagnostics["world"]["floor_boards"] == 3
     for n, clk in clocks.items():
         assert abs(res.camera_diagnostics[n]["board_clock_offset_s"] - clk.offset) < 0.15
-    ev = compare(res.rig, rig, align=False)["worst"]
+    ev = compare(res.rig, rig, align="none")["worst"]
     assert ev["focal_pct"] < 0.1 and ev["principal_point_px"] < 1.0
     # a wide lens (f = 520 px): 0.1 deg is 0.9 px, the principal point's own uncertainty here
     assert ev["rotation_deg"] < 0.1 and ev["center_mm"] < 3.0
@@ -118,7 +118,7 @@ def test_fixed_intrinsics_stay_fixed(fisheye_rig_data):
     for c in rig:
         assert np.allclose(res.rig[c.name].K, c.K) and np.allclose(res.rig[c.name].dist, c.dist)
         assert res.camera_diagnostics[c.name]["intrinsics_fixed"]
-    ev = compare(res.rig, rig, align=False)["worst"]
+    ev = compare(res.rig, rig, align="none")["worst"]
     assert ev["rotation_deg"] < 0.05 and ev["center_mm"] < 2.0
 
 

@@ -2,11 +2,19 @@
 
 rotation_deg (angle of R_est R_gt^T), center_mm, focal_pct (mean of |fx|, |fy| relative
 errors), principal_point_px, and reprojection_px (how differently the two cameras project
-points 1-10 m in front of the rig, in px: all errors at once). The comparison is direct
-when the calibration pinned its world frame to the floor board (diagnostics world.source
-= "floor"); otherwise, or when ``align`` forces it, the estimate is first brought onto the
-ground truth by the similarity (scale, rotation, translation) that best maps camera
-centres and axes.
+points 1-10 m in front of the true camera, in px: all errors at once; points that fall behind
+the estimated camera have no image there and are counted in behind_camera_pct instead).
+
+The two rigs are compared in one world frame, brought together by only what the calibration
+cannot know (``aligned``):
+
+- "floor": the calibration pinned its world to the floor board (diagnostics world.source =
+  "floor"), so its up axis, height and scale are its own claims; where the board lay on the
+  floor and how it was turned are not, so the estimate is first turned about the vertical and
+  shifted along the floor onto the truth (``align_floor``);
+- "similarity": otherwise (or when asked), the similarity (scale, rotation, translation) that
+  best maps camera centres and axes (``align_rig``); ``relative`` gives it beside "floor" too:
+  the rig's own shape, whatever its world frame.
 """
 
 from __future__ import annotations
@@ -36,12 +44,7 @@ def align_rig(est: Rig, gt: Rig) -> tuple[Rig, dict]:
     """The estimate in the ground truth's world frame by a similarity fitted on the camera
     centres and points 1 m along each camera's axes."""
     names = [c.name for c in gt if c.name in est]
-    pts_e, pts_g = [], []
-    for n in names:
-        for cam, pts in ((est[n], pts_e), (gt[n], pts_g)):
-            C = cam.center
-            pts += [C, C + cam.R[0], C + cam.R[1], C + cam.R[2]]
-    pe, pg = np.array(pts_e), np.array(pts_g)
+    pe, pg = _axis_points(est, gt, names)
     # scale from the camera centres (axes are unit length in both frames), then the rotation
     # and translation from centres and axis points together
     s = similarity(pe[0::4], pg[0::4])[0] if len(names) >= 2 else 1.0
@@ -56,14 +59,49 @@ def align_rig(est: Rig, gt: Rig) -> tuple[Rig, dict]:
         np.clip((np.trace(R) - 1) / 2, -1, 1)))), "translation_m": t.tolist(), "R": R.tolist()}
 
 
-def compare(est: Rig, gt: Rig, align: bool) -> dict:
+def _axis_points(est: Rig, gt: Rig, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(4 C, 3) camera centres and points 1 m along each camera's axes, in both rigs."""
+    pts_e, pts_g = [], []
+    for n in names:
+        for cam, pts in ((est[n], pts_e), (gt[n], pts_g)):
+            C = cam.center
+            pts += [C, C + cam.R[0], C + cam.R[1], C + cam.R[2]]
+    return np.array(pts_e), np.array(pts_g)
+
+
+def align_floor(est: Rig, gt: Rig) -> tuple[Rig, dict]:
+    """The estimate turned about the world's vertical (Z) and shifted along the floor onto the
+    truth (2D Procrustes of the camera centres and axis points' X, Y): its tilt, height and scale
+    stay as calibrated, so they count in the errors."""
+    names = [c.name for c in gt if c.name in est]
+    pe, pg = _axis_points(est, gt, names)
+    a, b = pe[:, :2] - pe[:, :2].mean(0), pg[:, :2] - pg[:, :2].mean(0)
+    U, _, Vt = np.linalg.svd(b.T @ a)
+    R2 = U @ np.diag([1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    R = np.eye(3)
+    R[:2, :2] = R2
+    t = np.zeros(3)
+    t[:2] = pg[:, :2].mean(0) - R2 @ pe[:, :2].mean(0)
+    return est.transformed(R, t, 1.0), {"yaw_deg": float(np.degrees(np.arctan2(R2[1, 0], R2[0, 0]))),
+                                         "floor_shift_m": t[:2].tolist()}
+
+
+ALIGNMENTS = ("none", "floor", "similarity")
+
+
+def compare(est: Rig, gt: Rig, align: str = "similarity") -> dict:
+    """Per-camera errors of ``est`` against ``gt`` after the alignment ``align`` (ALIGNMENTS)."""
     names = [c.name for c in gt if c.name in est]
     if not names:
         raise UserError("the calibration shares no camera name with gt/calibration.toml",
                         "calibrate the workspace's own board videos")
+    if align not in ALIGNMENTS:
+        raise ValueError(f"align must be one of {ALIGNMENTS}, not {align!r}")
     info = None
-    if align:
+    if align == "similarity":
         est, info = align_rig(est, gt)
+    elif align == "floor":
+        est, info = align_floor(est, gt)
     per = {}
     rng = np.random.default_rng(0)
     for n in names:
@@ -78,12 +116,15 @@ def compare(est: Rig, gt: Rig, align: bool) -> dict:
         xy = rng.uniform([0, 0], [w - 1, h - 1], (400, 2))
         depth = rng.uniform(1.0, 10.0, 400)
         X = g.unproject(xy, depth)
-        pe = e.project(X)
-        reproj = np.linalg.norm(pe - xy, axis=1)
+        front = e.to_camera(X)[:, 2] > 1e-6  # a point behind the estimated camera has no image there
+        reproj = np.linalg.norm(e.project(X[front]) - xy[front], axis=1) if front.any() else np.zeros(0)
         per[n] = {"rotation_deg": rot, "center_mm": centre, "focal_pct": focal, "principal_point_px": pp,
-                  "reprojection_px_mean": float(np.nanmean(reproj)), "reprojection_px_max": float(np.nanmax(reproj))}
-    worst = {k: float(max(v[k] for v in per.values())) for k in next(iter(per.values()))}
-    out = {"aligned": bool(align), "cameras": per, "worst": worst}
+                  "reprojection_px_mean": float(np.nanmean(reproj)) if len(reproj) else None,
+                  "reprojection_px_max": float(np.nanmax(reproj)) if len(reproj) else None,
+                  "behind_camera_pct": float(100 * (1 - front.mean()))}
+    worst = {k: (max(vals) if (vals := [v[k] for v in per.values() if v[k] is not None]) else None)
+             for k in next(iter(per.values()))}
+    out = {"aligned": align, "cameras": per, "worst": worst}
     if info:
         out["alignment"] = info
     return out
@@ -103,15 +144,16 @@ def world_frame_error(est: Rig, gt: Rig) -> dict:
             "scale_pct": float(abs(s - 1) * 100)}
 
 
-def evaluate_files(est_path: str | Path, gt_path: str | Path, align: bool | None = None) -> dict:
-    """Direct comparison where the world is pinned to the floor (else aligned), plus the rig's
-    own accuracy after alignment (``relative``) and, when pinned, the world frame's error."""
+def evaluate_files(est_path: str | Path, gt_path: str | Path, align: str | None = None) -> dict:
+    """The rigs compared after the alignment the calibration leaves open ("floor" where it pinned
+    its world to the floor board, else "similarity"; ``align`` forces one), plus the rig's own
+    accuracy after a similarity (``relative``) and, when pinned, the world frame's error."""
     est, diag = read_calibration(est_path)
     gt, _ = read_calibration(gt_path)
     pinned = diag.get("rig", {}).get("world", {}).get("source") == "floor"
-    out = compare(est, gt, align if align is not None else not pinned)
+    out = compare(est, gt, align or ("floor" if pinned else "similarity"))
     if pinned and align is None:
-        rel = compare(est, gt, True)
+        rel = compare(est, gt, "similarity")
         out["relative"] = {"cameras": rel["cameras"], "worst": rel["worst"], "alignment": rel.get("alignment")}
         out["world_frame"] = world_frame_error(est, gt)
     return out
