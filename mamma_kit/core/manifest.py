@@ -1,10 +1,13 @@
 """Stage manifests: a stage is skipped only when its inputs, settings and outputs are
 exactly what they were when it last finished.
 
-``.cache/<stage>.json`` records the sha256 of every input file, a hash of the settings,
-the mamma-kit version and the sha256 of every output. A stage is *fresh* when all of
-them match; anything else (a changed video, a new setting, a deleted or edited output,
-an interrupted run that never wrote its manifest) makes it stale, with the reason.
+``.cache/<stage>.json`` records the sha256 of every input file, the settings (and their
+hash), the mamma-kit version, the versions of the numerical libraries and the CPU's vector
+instructions (core/reproducible.runtime_record: what could change the numbers), and the
+sha256 of every output; for information also how it ran (threads, executor, seconds). A stage
+is *fresh* when inputs, settings, versions and outputs all match; anything else (a changed
+video, a new setting, another torch, a deleted or edited output, an interrupted run that never
+wrote its manifest) makes it stale, with the reason.
 
 Hashing big videos on every run would be slow, so file hashes are memoised in
 ``.cache/file-hashes.json`` by (size, mtime_ns): a file touched in any way is rehashed.
@@ -21,6 +24,7 @@ from typing import Any, Iterable
 
 from mamma_kit import __version__
 from mamma_kit.core.io import read_json, sha256_file, sha256_json, write_json
+from mamma_kit.core.reproducible import runtime_record, threads_record
 
 
 class FileHasher:
@@ -107,6 +111,9 @@ class StageManifest:
             return Freshness(False, f"made by mamma-kit {old.get('version')}, now {__version__}")
         if old.get("settings_sha256") != sha256_json(settings):
             return Freshness(False, "settings changed")
+        why = runtime_change(old.get("runtime"), runtime_record())
+        if why:
+            return Freshness(False, why)
         now = self._hashes(inputs)
         before = old.get("inputs", {})
         changed = sorted(k for k in set(now) | set(before) if now.get(k) != before.get(k))
@@ -123,10 +130,15 @@ class StageManifest:
     def record(self, inputs: Iterable[Path], settings: Any, outputs: Iterable[Path],
                summary: dict | None = None, seconds: float | None = None) -> Path:
         """Write the manifest after the stage's outputs are complete (atomically)."""
+        from mamma_kit.core.executor import executor_name
+
         data = {
             "stage": self.stage,
             "version": __version__,
             "settings_sha256": sha256_json(settings),
+            "settings": settings,
+            "runtime": runtime_record(),
+            "ran_with": {**threads_record(), "executor": executor_name()},  # cannot change the numbers
             "inputs": self._hashes(inputs),
             "outputs": self._hashes(outputs),
             "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -140,6 +152,22 @@ class StageManifest:
     def invalidate(self) -> None:
         if self.path.exists():
             os.remove(self.path)
+
+
+def runtime_change(before: dict | None, now: dict) -> str | None:
+    """Why a result made under ``before`` (a manifest's runtime) may differ from one made now, or None."""
+    if not before:
+        return "made before manifests recorded library versions"
+    for key in ("machine", "torch_cpu"):
+        if before.get(key) != now.get(key):
+            return f"made on {key} {before.get(key)}, now {now.get(key)}"
+    old_p, new_p = before.get("packages", {}), now.get("packages", {})
+    changed = sorted(p for p in set(old_p) | set(new_p) if old_p.get(p) != new_p.get(p))
+    if changed:
+        p = changed[0]
+        return f"made with {p} {old_p.get(p, '(none)')}, now {new_p.get(p, '(none)')}" + \
+            (f" (+{len(changed) - 1} more)" if len(changed) > 1 else "")
+    return None
 
 
 def producer(command: str, inputs: dict[str, str] | None = None) -> dict:
