@@ -3,6 +3,10 @@
 Phones record variable frame rate, so a frame's time is its presentation timestamp
 (float64 seconds on the container's timeline), never index / fps. Frame timestamps are
 read from the demuxed packets (no decoding), so they are cheap and exact.
+
+Frames come as a player shows them: turned by the file's display matrix (a portrait phone video
+is stored landscape; video/orientation.py) and, for HLG or PQ HDR, tone-mapped to SDR
+(video/colour.py). ``size`` is the displayed size; every stage works in that frame.
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ import av
 import numpy as np
 
 from mamma_kit.core.errors import UserError
+from mamma_kit.video.colour import hdr_to_sdr, transfer_of
+from mamma_kit.video.orientation import Orientation, from_display_matrix
 
 
 def open_container(path: Path):
@@ -46,15 +52,25 @@ def corrupt_error(path: Path, t: float | None, e: Exception) -> UserError:
 @dataclass
 class VideoInfo:
     path: Path
-    width: int
+    width: int  # displayed (after the display rotation)
     height: int
     n_frames: int
     timestamps: np.ndarray  # (T,) float64 seconds, presentation order
     nominal_fps: float
     time_base: float
     timecode: str | None
-    rotation_deg: int
+    rotation_deg: int  # clockwise turn from stored to displayed frames (0, 90, 180, 270)
     has_audio: bool
+    mirrored: bool = False  # displayed frames are mirrored (after the turn)
+    rotation_from: str = "file"  # "file" (its display matrix) or "capture.toml" (an override)
+    stored_size: tuple[int, int] = (0, 0)  # width, height as the codec stores them
+    codec: str = ""
+    bit_depth: int = 8
+    transfer: str = "sdr"  # "sdr", "hlg" or "pq" (HDR is tone-mapped to SDR when read)
+
+    @property
+    def orientation(self) -> Orientation:
+        return Orientation(self.rotation_deg, self.mirrored)
 
     @property
     def duration(self) -> float:
@@ -71,8 +87,19 @@ class VideoInfo:
             "path": str(self.path), "width": self.width, "height": self.height,
             "n_frames": self.n_frames, "duration_s": self.duration, "nominal_fps": self.nominal_fps,
             "start_s": float(self.timestamps[0]) if self.n_frames else None,
-            "timecode": self.timecode, "rotation_deg": self.rotation_deg, "has_audio": self.has_audio,
+            "timecode": self.timecode, "rotation_deg": self.rotation_deg, "mirrored": self.mirrored,
+            "rotation_from": self.rotation_from, "stored_size": list(self.stored_size), "codec": self.codec,
+            "bit_depth": self.bit_depth, "transfer": self.transfer, "has_audio": self.has_audio,
         }
+
+    def describe(self) -> str:
+        """One line for a user: displayed size, rotation, codec and HDR."""
+        turn = (f", shown turned {self.rotation_deg} deg{' and mirrored' if self.mirrored else ''} "
+                f"({'capture.toml' if self.rotation_from != 'file' else 'its display matrix'}; stored "
+                f"{self.stored_size[0]}x{self.stored_size[1]})") if not self.orientation.is_identity else ""
+        hdr = f", HDR {self.transfer.upper()} (tone-mapped to SDR)" if self.transfer != "sdr" else ""
+        return (f"{self.width}x{self.height}{turn}, {self.codec} {self.bit_depth}-bit{hdr}, "
+                f"{self.nominal_fps:.3g} fps, {self.n_frames} frames")
 
 
 class VideoReader:
@@ -84,10 +111,13 @@ class VideoReader:
     >>> t, rgb_hw3 = r.frame_at(1.25) # nearest frame to 1.25 s
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, rotation: int | None = None):
+        """``rotation``: the clockwise turn (0, 90, 180, 270) that shows the stored frames upright,
+        in place of the file's display matrix (capture.toml's per-camera ``rotation``); None: the
+        file's own."""
         self.path = Path(path)
+        self.rotation = rotation
         self._info: VideoInfo | None = None
-        self._container = None
 
     # ---- metadata -----------------------------------------------------------------
     @property
@@ -135,28 +165,43 @@ class VideoReader:
                     if s.type == "data" and "timecode" in s.metadata:
                         tc = s.metadata["timecode"]
                         break
+            w, h = vs.codec_context.width, vs.codec_context.height
+            shown, trc, depth = self._first_frame()
+            src = "file"
+            if self.rotation is not None:
+                shown, src = Orientation(int(self.rotation) % 360), "capture.toml"
+            dw, dh = shown.displayed_size(w, h)
             return VideoInfo(
-                path=self.path, width=vs.codec_context.width, height=vs.codec_context.height,
-                n_frames=len(ts), timestamps=ts, nominal_fps=nominal, time_base=float(tb),
-                timecode=tc, rotation_deg=self._rotation(), has_audio=bool(c.streams.audio),
+                path=self.path, width=dw, height=dh, n_frames=len(ts), timestamps=ts, nominal_fps=nominal,
+                time_base=float(tb), timecode=tc, rotation_deg=shown.cw, has_audio=bool(c.streams.audio),
+                mirrored=shown.mirror, rotation_from=src, stored_size=(w, h), codec=vs.codec_context.name,
+                bit_depth=depth, transfer=trc,
             )
         finally:
             c.close()
 
-    def _rotation(self) -> int:
-        """Display rotation in degrees from the first frame's display matrix (0 if none)."""
+    def _first_frame(self) -> tuple[Orientation, str, int]:
+        """The first frame's display orientation, transfer ("sdr", "hlg", "pq") and bits per sample."""
         try:
             with av.open(str(self.path)) as c:
                 for fr in c.decode(video=0):
-                    return int(round(getattr(fr, "rotation", 0) or 0)) % 360
+                    m9 = None
+                    for sd in fr.side_data:
+                        if sd.type.name == "DISPLAYMATRIX":
+                            m9 = np.frombuffer(bytes(sd), np.int32)
+                    depth = max((comp.bits for comp in fr.format.components), default=8)
+                    return from_display_matrix(m9), transfer_of(fr.color_trc), int(depth)
         except av.error.FFmpegError:
-            return 0
-        return 0
+            pass
+        return Orientation(), "sdr", 8
 
     # ---- frames -------------------------------------------------------------------
     def frames(self, start: float | None = None, end: float | None = None,
                fmt: str = "rgb24") -> Iterator[tuple[float, np.ndarray]]:
-        """Yield (t, image_hw3 uint8) for frames with start <= t < end, in time order."""
+        """Yield (t, image_hw3 uint8) for frames with start <= t < end, in time order, as displayed
+        (turned, HDR tone-mapped); ``fmt`` "rgb24" or "gray" (any PyAV format for SDR files)."""
+        info = self.info
+        shown, hdr = info.orientation, info.transfer if info.transfer != "sdr" else None
         c = open_container(self.path)
         try:
             vs = c.streams.video[0]
@@ -173,7 +218,7 @@ class VideoReader:
                         continue
                     if end is not None and t >= end - 1e-9:
                         break
-                    yield t, fr.to_ndarray(format=fmt)
+                    yield t, shown.apply(_pixels(fr, fmt, hdr))
             except av.error.FFmpegError as e:
                 raise corrupt_error(self.path, t, e) from None
         finally:
@@ -216,8 +261,22 @@ class VideoReader:
                     return
 
 
-def probe(path: str | Path) -> VideoInfo:
-    return VideoReader(path).info
+def _pixels(fr, fmt: str, hdr: str | None) -> np.ndarray:
+    """The decoded frame as a ``fmt`` array; HDR through the tone map (colour.py)."""
+    if hdr is None:
+        return fr.to_ndarray(format=fmt)
+    rgb = hdr_to_sdr(fr.to_ndarray(format="rgb48le"), hdr)
+    if fmt == "rgb24":
+        return rgb
+    if fmt == "gray":
+        import cv2
+
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    raise ValueError(f"an HDR frame reads as rgb24 or gray, not {fmt}")
+
+
+def probe(path: str | Path, rotation: int | None = None) -> VideoInfo:
+    return VideoReader(path, rotation).info
 
 
 def read_timecode(path: str | Path) -> str | None:
