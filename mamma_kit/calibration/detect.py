@@ -37,11 +37,11 @@ MIN_CORNERS = 6  # a view needs this many corners to be used
 class Detections:
     camera: str
     video: str
-    size: tuple[int, int]  # width, height of the stored frames
+    size: tuple[int, int]  # width, height of the displayed frames (after the file's display rotation)
     times_f: np.ndarray  # (F,) camera-clock seconds of the sampled frames
     xy_fn2: np.ndarray  # (F, N, 2) corner pixels, NaN where not detected
     n_markers_f: np.ndarray  # (F,) ArUco markers found per sampled frame
-    rotation_deg: int = 0  # display rotation stored in the file (frames are used as stored)
+    rotation_deg: int = 0  # clockwise turn from the stored frames to the displayed ones
     frame_step: int = 1
     extra: dict = field(default_factory=dict)
     index_f: np.ndarray | None = None  # (F,) frame numbers in the video (default: k * frame_step)
@@ -171,13 +171,15 @@ def frame_step_for(nominal_fps: float, max_fps: float | None, n_frames: int | No
 
 
 def detect_video(path: str | Path, spec: BoardSpec, camera: str | None = None, *, max_fps: float | None = 10.0,
-                 max_detect_width: int = 2000, progress: bool = True, mirrored: bool = True) -> Detections:
+                 max_detect_width: int = 2000, progress: bool = True, mirrored: bool = True,
+                 rotation: int | None = None) -> Detections:
     """Detect the board in every ``step``-th frame of a video (see :func:`frame_step_for`),
-    from the front or, with ``mirrored``, from behind."""
+    from the front or, with ``mirrored``, from behind; in the displayed frames (``rotation``:
+    capture.toml's override of the file's display rotation)."""
     from mamma_kit.video.reader import VideoReader
 
     path = Path(path)
-    r = VideoReader(path)
+    r = VideoReader(path, rotation)
     info = r.info
     step = frame_step_for(info.nominal_fps, max_fps, info.n_frames)
     finder = BoardFinder(spec, max_detect_width, mirrored=mirrored)
@@ -209,12 +211,12 @@ _FAMILIES = ["4X4_100", "5X5_100", "6X6_100", "7X7_100", "APRILTAG_16H5", "APRIL
 _FAMILIES_SLOW = ["ARUCO_ORIGINAL", "APRILTAG_36H11", "4X4_1000", "5X5_1000", "6X6_1000", "7X7_1000"]
 
 
-def _sample_frames(path: Path, n: int, det: Detections | None = None) -> list[np.ndarray]:
+def _sample_frames(path: Path, n: int, det: Detections | None = None, rotation: int | None = None) -> list[np.ndarray]:
     """Up to ``n`` grey frames: those where the detection found the most markers (the
     frames that show a board), else spread evenly over the video."""
     from mamma_kit.video.reader import VideoReader
 
-    r = VideoReader(path)
+    r = VideoReader(path, rotation)
     idx = np.unique(np.linspace(0, r.n_frames - 1, min(n, r.n_frames)).round().astype(int))
     if det is not None and len(det.n_markers_f) and det.n_markers_f.max() > 0:
         order = np.argsort(-det.n_markers_f, kind="stable")
@@ -285,7 +287,7 @@ def _corner_score(spec: BoardSpec, frames: list[np.ndarray]) -> int:
 
 
 def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int = 12,
-                   detections: Detections | None = None) -> UserError | None:
+                   detections: Detections | None = None, rotation: int | None = None) -> UserError | None:
     """Find which board variant a video shows and return the UserError that says so, or
     None when the spec itself is the best match (the board is just seldom seen well).
 
@@ -294,7 +296,7 @@ def diagnose_board(path: str | Path, spec: BoardSpec, camera: str, n_frames: int
     family), the legacy layout, inverted colours, swapped rows/columns and the board seen
     from behind (mirrored), and names the variant that matches."""
     path = Path(path)
-    frames = _sample_frames(path, n_frames, detections)
+    frames = _sample_frames(path, n_frames, detections, rotation)
     where = f"camera {camera}: no ChArUco board found in {len(frames)} sampled frames of {path.name} " \
             f"(spec {spec.describe()})"
     mirrored = [np.ascontiguousarray(g[:, ::-1]) for g in frames]

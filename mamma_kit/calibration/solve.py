@@ -49,9 +49,12 @@ class Settings:
     max_detect_width: int = 2000
     workers: int | None = None  # processes for detection (default: one per CPU)
     mirrored: bool = True  # also look for the board seen from behind (mirrored)
+    # per camera, capture.toml's clockwise turn that shows its board video upright (in place of the
+    # file's display rotation); cameras not named use their file's
+    rotations: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if v is not None}
+        return {k: v for k, v in self.__dict__.items() if v is not None and v != {}}
 
 
 @dataclass
@@ -185,7 +188,7 @@ def _detect_boards(videos: dict[str, Path], spec: BoardSpec, st: Settings, detec
     for n in names:
         if len(dets[n].usable(spec)) < MIN_VIEWS:
             # few or no views: most often a board that differs from its spec
-            err = diagnose_board(videos[n], spec, n, detections=dets[n])
+            err = diagnose_board(videos[n], spec, n, detections=dets[n], rotation=st.rotations.get(n))
             if err is not None:
                 raise err
         n_back = int(dets[n].mirrored_f[dets[n].usable(spec)].sum())
@@ -193,9 +196,9 @@ def _detect_boards(videos: dict[str, Path], spec: BoardSpec, st: Settings, detec
             log.info(f"{n}: {n_back} of {len(dets[n].usable(spec))} board views are seen from behind (mirrored "
                      f"back side): used as views of the same corners")
         if dets[n].rotation_deg:
-            log.info(f"{n}: {Path(videos[n]).name} asks to be displayed rotated by {dets[n].rotation_deg} degrees; "
-                     f"calibrated as its frames are stored ({dets[n].size[0]}x{dets[n].size[1]}), as every "
-                     f"mamma-kit stage reads them")
+            log.info(f"{n}: {Path(videos[n]).name} is shown turned {dets[n].rotation_deg} degrees clockwise; "
+                     f"calibrated in that displayed frame ({dets[n].size[0]}x{dets[n].size[1]}), as every "
+                     f"mamma-kit stage reads it")
     return dets
 
 
@@ -483,7 +486,7 @@ def _cached_detections(video: Path, spec: BoardSpec, name: str, st: Settings, ca
         stt = Path(video).stat()
         key = sha256_json({"video": str(Path(video).resolve()), "size": stt.st_size, "mtime": stt.st_mtime_ns,
                            "spec": spec.to_dict(), "fps": st.max_fps, "width": st.max_detect_width,
-                           "mirrored": st.mirrored, "v": 2})
+                           "mirrored": st.mirrored, "rotation": st.rotations.get(name), "v": 3})
         f = Path(cache_dir) / f"{name}.npz"
         if f.is_file():
             try:
@@ -495,7 +498,7 @@ def _cached_detections(video: Path, spec: BoardSpec, name: str, st: Settings, ca
                 pass
     log.info(f"detecting the board in {video}")
     d = detect_video(video, spec, name, max_fps=st.max_fps, max_detect_width=st.max_detect_width, progress=progress,
-                     mirrored=st.mirrored)
+                     mirrored=st.mirrored, rotation=st.rotations.get(name))
     if key is not None:
         write_npz(Path(cache_dir) / f"{name}.npz", key=np.array(key), **d.to_npz_dict())
     return d

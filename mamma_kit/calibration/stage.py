@@ -100,6 +100,7 @@ def run_calibrate(ws, *, board: str | None = None, settings: Settings | None = N
         raise UserError("no board spec: capture.toml has no [board] spec", "pass --board SPEC or add "
                         "[board] spec = \"charuco.toml\" to capture.toml")
     settings = settings or Settings()
+    settings.rotations = {n: e.rotation for n, e in cap.cameras.items() if e.rotation is not None}
     spec = load_board_spec(spec_src)
     inputs = [Path(p) for p in videos.values()] + ([Path(spec_src)] if Path(spec_src).is_file() else [])
     if timestamps is None and timing is None and not synced:

@@ -19,6 +19,8 @@ capture.toml::
     [cameras.cam0]
     video = "videos/cam0.mp4"
     board_video = "board/cam0.mp4"     # optional
+    rotation = "auto"                  # optional: 0, 90, 180 or 270 (clockwise) shows the videos
+                                       # upright where the file's display rotation is wrong
     [sequence]                         # optional reference-time range (s)
     start_s = 0.0
     end_s = 12.0
@@ -40,11 +42,30 @@ from mamma_kit.core.io import read_toml, write_toml
 STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fit", "report")
 
 
+ROTATIONS = (0, 90, 180, 270)
+
+
 @dataclass
 class CameraEntry:
     name: str
     video: Path
     board_video: Path | None = None
+    rotation: int | None = None  # clockwise turn that shows the videos upright; None: the files' own
+
+
+def parse_rotation(value, where: str) -> int | None:
+    """A capture.toml ``rotation``: "auto" (None) or 0, 90, 180, 270 clockwise degrees."""
+    if value is None or (isinstance(value, str) and value.strip().lower() == "auto"):
+        return None
+    try:
+        deg = int(str(value).strip())
+    except ValueError:
+        deg = -1
+    if isinstance(value, bool) or deg not in ROTATIONS:
+        raise UserError(f"{where}: rotation = {value!r} is not one of auto, 0, 90, 180, 270",
+                        "set rotation to the clockwise turn that shows the video upright, or \"auto\" for the "
+                        "file's own display rotation")
+    return deg
 
 
 @dataclass
@@ -193,7 +214,8 @@ class Workspace:
                 raise UserError(f"capture.toml: camera {name} has no 'video'", "add video = \"videos/NAME.mp4\"")
             bv = d.get("board_video")
             entries[name] = CameraEntry(name, self.resolve(d["video"], f"video of {name}"),
-                                        self.resolve(bv, f"board video of {name}") if bv else None)
+                                        self.resolve(bv, f"board video of {name}") if bv else None,
+                                        parse_rotation(d.get("rotation"), f"capture.toml [cameras.{name}]"))
         cap = data.get("capture", {})
         seq = data.get("sequence", {})
         board = data.get("board", {})

@@ -53,12 +53,13 @@ def picture_frames(kt: KeypointTracks, n: int = PANELS) -> list[int]:
     return sorted({int(have[i]) for i in np.linspace(0, len(have) - 1, min(n, len(have))).round().astype(int)})
 
 
-def write_keypoints_picture(kt: KeypointTracks, video: Path, path: Path, width: int = 1600) -> Path:
+def write_keypoints_picture(kt: KeypointTracks, video: Path, path: Path, width: int = 1600,
+                            rotation: int | None = None) -> Path:
     """The frames side by side, scaled to ``width`` px in all."""
     from mamma_kit.video.reader import VideoReader
 
     frames = picture_frames(kt)
-    reader = VideoReader(video)
+    reader = VideoReader(video, rotation)
     vid = nearest_frames(kt.frame_times[frames], reader.timestamps) if frames else np.zeros(0, int)
     t_of = {int(v): t for t, v in zip(frames, vid) if v >= 0}
     panels = [draw_keypoints(rgb, kt, t_of[i]) for i, _, rgb in reader.read_indices(sorted(t_of))]

@@ -56,17 +56,18 @@ def points_p5(res, j: int) -> np.ndarray:
 
 def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
                          progress_label: str | None = None, frames: tuple[int, int] | None = None,
-                         resplit: bool | int = True, hands=None) -> tuple[KeypointTracks, dict]:
+                         resplit: bool | int = True, hands=None, rotation: int | None = None
+                         ) -> tuple[KeypointTracks, dict]:
     """33 points for every (frame, track) of one camera's mask tracks, streaming the video once.
     ``frames``: only the mask frames start:stop (a unit of a split camera; the ROIs are found
     afresh by the detector at its first frame). ``resplit`` (rounds, True = RESPLIT_ROUNDS; with
     ``blank`` only): where two people's masks touch, they are re-split by the points found
     (keypoints/resplit.py) and the people whose mask changed are read again on their new mask.
     ``hands``: a keypoints.hands.HandLandmarker that reads both hands of every person found
-    (read_hands), or None."""
+    (read_hands), or None. ``rotation``: capture.toml's override of the file's display rotation."""
     from mamma_kit.video import VideoReader
 
-    reader = VideoReader(video_path)
+    reader = VideoReader(video_path, rotation)
     if tuple(reader.size) != tuple(masks.image_size):
         raise UserError(f"masks/{masks.camera}.npz is {masks.image_size[0]}x{masks.image_size[1]} but "
                         f"{reader.path.name} is {reader.size[0]}x{reader.size[1]}",
@@ -262,11 +263,12 @@ def _keypoints_range(unit: tuple[str, tuple[int, int]], root: Path, models: list
     masks = MaskTracks.load(ws.mask_file(cam))
     resplit = 0 if masks.producer.get("command") in NO_RESPLIT else settings["resplit"]
     if frames == (0, len(masks.frame_times)):
-        kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank, resplit=resplit, hands=hl)
+        kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank, resplit=resplit, hands=hl,
+                                        rotation=cap.cameras[cam].rotation)
         return _write_camera(ws, cam, kt, summ, models, settings, pictures), None
     kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank,
                                     progress_label=f"keypoints {cam} {frames[0]}-{frames[1]}", frames=frames,
-                                    resplit=resplit, hands=hl)
+                                    resplit=resplit, hands=hl, rotation=cap.cameras[cam].rotation)
     return summ, kt
 
 
@@ -298,7 +300,8 @@ def _write_camera(ws, cam: str, kt: KeypointTracks, summ: dict, models: list[Pat
     if pictures:
         from mamma_kit.keypoints.pictures import write_keypoints_picture
 
-        pic = write_keypoints_picture(kt, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png")
+        pic = write_keypoints_picture(kt, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png",
+                                      rotation=cap.cameras[cam].rotation)
         summ["picture"] = ws.relative(pic)
         outputs.append(pic)
     manifest.record(inputs, {**settings, "camera": cam}, outputs, summ, summ["seconds"] + time.perf_counter() - tc)

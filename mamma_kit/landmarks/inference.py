@@ -217,17 +217,19 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
                min_area: int = MIN_MASK_AREA, producer: dict | None = None,
                keypoints: KeypointTracks | None = None, frame_range: tuple[int, int] | None = None,
-               hands=None, contact: Predictor | None = None) -> tuple[LandmarkTracks, dict]:
+               hands=None, contact: Predictor | None = None, rotation: int | None = None
+               ) -> tuple[LandmarkTracks, dict]:
     """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video.
     ``hands``: a hands.HandRefiner that re-reads each hand at the frame's resolution. ``contact``: a
     second network (its own crops) whose person-contact head replaces ``pred``'s.
     ``keypoints``: the camera's keypoints/<cam>.npz (on the mask tracks' frames and tracks), which
     keypoint-guided models read. ``frame_range``: only the mask frames start:stop (a unit of a split
-    camera; every crop is independent of the others, so the split changes nothing)."""
+    camera; every crop is independent of the others, so the split changes nothing). ``rotation``:
+    capture.toml's override of the file's display rotation."""
     from mamma_kit.core.tracks import nearest_frames
     from mamma_kit.video import VideoReader
 
-    reader = VideoReader(video_path)
+    reader = VideoReader(video_path, rotation)
     if tuple(reader.size) != tuple(masks.image_size):
         raise UserError(f"masks/{cam}.npz is {masks.image_size[0]}x{masks.image_size[1]} but {reader.path.name} is "
                         f"{reader.size[0]}x{reader.size[1]}", "run `mamma-kit track` again for this camera")

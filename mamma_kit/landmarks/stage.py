@@ -205,7 +205,8 @@ def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, sourc
     whole = frames == (0, len(masks.frame_times))
     with one_thread():  # the same bits whatever the cores, the executor or the other units
         lt, summ = run_camera(pred, cam, masks, cap.cameras[cam].video, batch, keypoints=kt,
-                              frame_range=None if whole else frames, hands=refiner, contact=pred_contact)
+                              frame_range=None if whole else frames, hands=refiner, contact=pred_contact,
+                              rotation=cap.cameras[cam].rotation)
     if whole:
         return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
     return summ, lt

@@ -27,6 +27,7 @@ class CameraInput:
     # the camera's board video: calibration assumes the camera did not move between it and
     # the capture, so the builtin backend can take an empty-scene background from it
     board_video: Path | None = None
+    rotation: int | None = None  # capture.toml's override of the files' display rotation (None: theirs)
 
 
 class MaskBackend(Protocol):

@@ -71,7 +71,7 @@ class BuiltinBackend:
         from mamma_kit.video.reader import VideoReader
 
         s = self.s
-        rd = VideoReader(cam.board_video)
+        rd = VideoReader(cam.board_video, cam.rotation)
         W, H = size_wh
         bw, bh = rd.size
         if abs(bw / bh - W / H) > 0.01:
@@ -93,7 +93,7 @@ class BuiltinBackend:
         from mamma_kit.video.reader import VideoReader
 
         s = self.s
-        rd = VideoReader(cam.video)
+        rd = VideoReader(cam.video, cam.rotation)
         times = rd.timestamps
         W, H = rd.size
         f = min(1.0, s.max_side / max(W, H))

@@ -42,11 +42,11 @@ def draw_tracks(rgb_hw3: np.ndarray, mt: MaskTracks, t: int) -> np.ndarray:
     return img
 
 
-def write_track_picture(mt: MaskTracks, video: Path, path: Path) -> Path:
+def write_track_picture(mt: MaskTracks, video: Path, path: Path, rotation: int | None = None) -> Path:
     from mamma_kit.video.reader import VideoReader
 
     t = best_frame(mt)
-    _, rgb = VideoReader(video).frame_index(t)
+    _, rgb = VideoReader(video, rotation).frame_index(t)
     img = draw_tracks(rgb, mt, t)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

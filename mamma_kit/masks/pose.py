@@ -239,7 +239,7 @@ class PoseBackend:
     def track_camera(self, cam: CameraInput) -> tuple[MaskTracks, dict]:
         from mamma_kit.video.reader import VideoReader
 
-        rd = VideoReader(cam.video)
+        rd = VideoReader(cam.video, cam.rotation)
         times = rd.timestamps
         W, H = rd.size
         est = self.est

@@ -256,7 +256,7 @@ class Sam2Backend:
     def track_camera(self, cam: CameraInput) -> tuple[MaskTracks, dict]:
         from mamma_kit.video.reader import VideoReader
 
-        rd = VideoReader(cam.video)
+        rd = VideoReader(cam.video, cam.rotation)
         times = rd.timestamps
         prompts = self.camera_prompts(cam, times)
         builder = MaskTrackBuilder(cam.name, rd.size, times)

@@ -54,7 +54,8 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
     per_cam, todo = {}, []
     for c in names:
         manifest = StageManifest(ws.cache_dir, f"track-{c}", ws.root)
-        state = manifest.check(_inputs(ws, cap.cameras[c], backend, prompts, sam2_checkpoint), settings)
+        state = manifest.check(_inputs(ws, cap.cameras[c], backend, prompts, sam2_checkpoint),
+                               {**settings, "rotation": cap.cameras[c].rotation})
         if state.fresh and not force and ws.mask_file(c).is_file():
             per_cam[c] = {"camera": c, "skipped": True, **manifest.load().get("summary", {})}
         else:
@@ -106,7 +107,7 @@ def _track_one(c: str, root: Path, backend: str, options: dict, settings: dict, 
     if key not in _BACKENDS:  # built once per process (sam2 loads a model)
         _BACKENDS[key] = get_backend(backend, **options)
     mt, summ = _BACKENDS[key].track_camera(
-        CameraInput(c, entry.video, ws.root, board_video=entry.board_video))
+        CameraInput(c, entry.video, ws.root, board_video=entry.board_video, rotation=entry.rotation))
     mt.producer = producer(f"track --backend {backend}", hashes)
     out = ws.mask_file(c)
     mt.save(out)
@@ -114,9 +115,9 @@ def _track_one(c: str, root: Path, backend: str, options: dict, settings: dict, 
     if pictures:
         from mamma_kit.masks.pictures import write_track_picture
 
-        pic = write_track_picture(mt, entry.video, ws.report_dir / "tracks" / f"{c}.png")
+        pic = write_track_picture(mt, entry.video, ws.report_dir / "tracks" / f"{c}.png", entry.rotation)
         summ["picture"] = ws.relative(pic)
         outputs.append(pic)
     summ.pop("settings", None)
-    manifest.record(inputs, settings, outputs, summ, time.perf_counter() - tc)
+    manifest.record(inputs, {**settings, "rotation": entry.rotation}, outputs, summ, time.perf_counter() - tc)
     return summ

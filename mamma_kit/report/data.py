@@ -168,6 +168,10 @@ class ReportData:
         p = self.capture.cameras[cam].video
         return p if p.is_file() else None
 
+    def rotation(self, cam: str) -> int | None:
+        """capture.toml's override of the camera's display rotation (None: the file's own)."""
+        return self.capture.cameras[cam].rotation if self.capture and cam in self.capture.cameras else None
+
     # ---- the body at given times ---------------------------------------------------------
     @staticmethod
     def interpolation(frame_times: np.ndarray, t_ref: np.ndarray):

@@ -193,7 +193,7 @@ def overlay_stills(data: ReportData, cam: str, out_path: Path, n: int = STILLS_P
     reference times, or None if no frame lies in the span."""
     from mamma_kit.video.reader import VideoReader
 
-    reader = VideoReader(data.video(cam))
+    reader = VideoReader(data.video(cam), data.rotation(cam))
     ts = reader.timestamps
     t0, t1 = _fitted_span(data)
     t_ref = data.clock(cam).to_ref(ts)
@@ -227,7 +227,7 @@ def overlay_video(data: ReportData, cams: list[str], out_path: Path, seconds: fl
     t_out = ft[ft <= ft[0] + seconds + 1e-9][: max(1, int(round(seconds * fps)))]
     cols = 1 if len(cams) == 1 else 2
     rows = -(-len(cams) // cols)
-    readers = {c: VideoReader(data.video(c)) for c in cams}
+    readers = {c: VideoReader(data.video(c), data.rotation(c)) for c in cams}
     w0, h0 = readers[cams[0]].size
     tw = (min(width // cols, w0) // 2) * 2
     th = (int(round(h0 * tw / w0)) // 2) * 2
