@@ -313,6 +313,8 @@ def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path
         if not p.is_file():
             raise UserError(f"video not found: {p}", "check the path")
         VideoReader(p).info  # a corrupt or non-video file ends here, before anything is written
+    for n, p in zip(names, videos):  # what every stage will see: the displayed frames
+        log.info(f"{n}: {p.name}: {VideoReader(p).info.describe()}")
     rig = None if calibration is None else _given_calibration(Path(calibration), names, videos, bool(board_videos))
     ws.root.mkdir(parents=True, exist_ok=True)
     if rig is not None:
@@ -364,9 +366,27 @@ def _given_calibration(path: Path, names: list[str], videos: list[Path], has_boa
                         "pass board videos to calibrate, or a calibration to use as it is, not both")
     rig = read_rig(path)
     check_rig_covers(rig, names, path)
+    cams = []
     for n, v in zip(names, videos):
         w, h = VideoReader(v).size
-        if (w, h) != tuple(rig[n].size):
-            raise UserError(f"{path.name} calibrates camera {n} at {rig[n].size[0]}x{rig[n].size[1]} but {v.name} "
-                            f"is {w}x{h}", "use a calibration made at the videos' resolution and orientation")
-    return Rig([rig[n] for n in names])
+        cw, ch = (int(x) for x in rig[n].size)
+        if (w, h) == (cw, ch):
+            cams.append(rig[n])
+        elif is_codec_padding(cw, w) and is_codec_padding(ch, h):
+            # the calibrating system saw the codec's coded picture (rounded up to 16 pixels); the
+            # video shows it cropped at the right and bottom, where codecs pad: the pixels that
+            # remain keep their coordinates, so K stays and only the size changes
+            log.warn(f"{path.name} calibrates camera {n} at {cw}x{ch}, {v.name} is {w}x{h}: taken as the codec's "
+                     f"padding to a multiple of 16, cropped at the right and bottom ({cw - w} columns, {ch - h} rows; "
+                     f"the principal point kept)")
+            cams.append(rig[n].copy(size=(w, h)))
+        else:
+            raise UserError(f"{path.name} calibrates camera {n} at {cw}x{ch} but {v.name} is shown at {w}x{h}",
+                            "use a calibration made at the videos' resolution and orientation (a portrait phone "
+                            "video is shown upright: calibrate it upright)")
+    return Rig(cams)
+
+
+def is_codec_padding(calibrated: int, shown: int) -> bool:
+    """``calibrated`` is ``shown`` rounded up to the codec's 16-pixel blocks (1088 for 1080)."""
+    return calibrated == shown or (calibrated > shown and calibrated % 16 == 0 and calibrated - shown < 16)
