@@ -606,12 +606,12 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
                          frame_times: Mapping[str, np.ndarray] | None = None, floor_pose: bool = True,
                          closeups: bool = True, n_closeups: int = 8, noise_sigma: float = 2.0,
                          exposure_s: float = 1 / 120, motion_blur: bool = True, supersample: int = 3,
-                         tremor_m: float = 0.0003, crf: int = 18, rotation_deg: Mapping[str, int] | None = None,
+                         tremor_m: float = 0.0003, crf: int = 18, writer_options: Mapping[str, dict] | None = None,
                          video_ext: str = ".mp4", trajectory: BoardTrajectory | None = None,
                          cameras: Sequence[str] | None = None, progress: bool = True,
                          backgrounds: Mapping[str, np.ndarray] | None = None, back: str = "plain",
                          behind: Sequence[str] = (), workers: int | None = 1, **plan_kw) -> dict:
-    """Render a board session as one H.264 video per camera: ``out_dir/<cam><video_ext>``.
+    """Render a board session as one video per camera: ``out_dir/<cam><video_ext>``.
 
     Parameters (what a recipe's [board] table maps onto):
       rig          cameras with true intrinsics, lens model and world-to-camera pose (world Z up)
@@ -632,7 +632,8 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
       exposure_s, motion_blur   exposure time; with motion_blur the board is averaged over it
       supersample  sub-pixel samples per axis (anti-aliasing)
       tremor_m     hand tremor amplitude (m) on hand-held holds
-      rotation_deg per camera display-rotation metadata written into the file (0 = none)
+      writer_options  per camera VideoWriter keywords (codec, bit_depth, hlg, orientation: the
+                   file as the phone writes it; Recipe.writer_options); default H.264 8-bit
       trajectory   a ready BoardTrajectory instead of planning one
       cameras      render only these cameras (the trajectory still sees the whole rig)
       backgrounds  per camera the empty scene behind the board (float32 RGB 0..255, e.g.
@@ -669,7 +670,7 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
     if default_workers(len(names), workers) > 1:
         kw = dict(seed=seed, duration_s=duration_s, fps=fps, clocks=clocks, noise_sigma=noise_sigma,
                   exposure_s=exposure_s, motion_blur=motion_blur, supersample=supersample, crf=crf,
-                  rotation_deg=rotation_deg, video_ext=video_ext, trajectory=traj, progress=progress, back=back,
+                  writer_options=writer_options, video_ext=video_ext, trajectory=traj, progress=progress, back=back,
                   workers=1)
         units = [(out_dir, rig, spec, kw | {"cameras": [n],
                                             "frame_times": {n: frame_times[n]} if frame_times and n in frame_times
@@ -704,8 +705,8 @@ def render_board_session(out_dir: str | Path, rig: Rig, spec: BoardSpec, *, seed
         result["from_behind"][name] = o_b[:, 2] > 0
         path = out_dir / f"{name}{video_ext}"
         nominal = 1.0 / np.median(np.diff(t_cam)) if len(t_cam) > 1 else fps
-        rot = int((rotation_deg or {}).get(name, 0))
-        with VideoWriter(path, cam.width, cam.height, fps=nominal, crf=crf, rotation_deg=rot) as wr:
+        with VideoWriter(path, cam.width, cam.height, fps=nominal, crf=crf,
+                         **(writer_options or {}).get(name, {})) as wr:
             items = range(len(t_cam))
             for i in (track(items, f"board video {name}") if progress else items):
                 times = [t_ref[i]]

@@ -77,7 +77,7 @@ def synthesize(recipe_ref: str | Path, out: str | Path, seed: int | None = None,
     # ---- videos + per-frame ground truth -------------------------------------------------
     t1 = time.perf_counter()
     gt = out / "gt"
-    ext = ".mov" if recipe.audio.get("codec") == "pcm" else ".mp4"
+    ext = recipe.video_ext
     scene.label_contacts([sc.scene_times for sc in cams], workers)
     units = [(scene, sc, out / "videos" / f"{sc.camera.name}{ext}", audio.get(sc.camera.name), recipe, gt)
              for sc in cams]
@@ -162,7 +162,9 @@ def _render_board(recipe: Recipe, cams: list[SynthCamera], out: Path, scene=None
               clocks={c.camera.name: c.clock for c in cams}, closeups=bool(recipe.board.get("closeups", True)),
               n_closeups=int(recipe.board.get("n_closeups", 8)), noise_sigma=float(recipe.render.get("noise", 2.0)),
               supersample=int(recipe.board.get("supersample", 2)), progress=False,
-              back=str(recipe.board.get("back", "plain")), behind=list(recipe.board.get("behind", [])))
+              back=str(recipe.board.get("back", "plain")), behind=list(recipe.board.get("behind", [])),
+              video_ext=recipe.video_ext, writer_options={c.camera.name: recipe.writer_options(c.camera.name)
+                                                          for c in cams})
     rig = rig_of(cams)
     # one camera per process (the session's plan is the same in each: it depends on the seed and rig)
     units = [(out / "board", rig, spec, kw, c.camera.name, (backgrounds or {}).get(c.camera.name)) for c in cams]

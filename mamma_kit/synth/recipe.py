@@ -22,6 +22,14 @@ Ranges written as ``[lo, hi]`` are sampled per camera/person from the recipe's s
     distortion = [0.05, -0.08, 0.0, 0.0, 0.02]   # radtan k1 k2 p1 p2 k3
     portrait = [false]          # per-camera portrait (rotated 90 deg) flags, cycled
 
+    [rig.video]                 # optional: files as phones write them (default: H.264 8-bit SDR .mp4)
+    codec = "hevc"              # h264 | hevc
+    bit_depth = 10              # 8 | 10 (hevc)
+    transfer = "hlg"            # sdr | hlg (10-bit: BT.2020 HLG, as iPhones record by default)
+    rotation = [90, 0]          # per camera, cycled: the display matrix's clockwise turn; the frames
+                                # are stored turned back (a portrait camera with 90: stored landscape)
+    container = "mov"           # mp4 | mov
+
     [rig.clock]                 # per-camera clock, values or [lo, hi] ranges
     offset_s = [0.0, 0.8]       # reference time at the camera's time zero
     drift_ppm = [-20.0, 20.0]
@@ -137,12 +145,28 @@ class Recipe:
     board: dict[str, Any] | None
     render: dict[str, Any]
     path: Path | None = None
+    video: dict[str, Any] = field(default_factory=dict)
     flash: dict[str, Any] | None = None
     raw: dict[str, Any] = field(default_factory=dict)
 
     @property
     def motion_kind(self) -> str:
         return str(self.motion.get("kind", "walk"))
+
+    @property
+    def video_ext(self) -> str:
+        """.mov for [rig.video] container = "mov" or PCM audio, else .mp4."""
+        return ".mov" if self.video.get("container") == "mov" or self.audio.get("codec") == "pcm" else ".mp4"
+
+    def writer_options(self, camera: str) -> dict[str, Any]:
+        """VideoWriter keywords for a camera's files ([rig.video]): codec, bits, HLG, orientation."""
+        from mamma_kit.video.orientation import Orientation
+
+        names = [c.name for c in self.cameras]
+        turns = self.video.get("rotation", [0])
+        cw = int(turns[names.index(camera) % len(turns)]) if camera in names else 0
+        return {"codec": self.video.get("codec", "h264"), "bit_depth": int(self.video.get("bit_depth", 8)),
+                "hlg": self.video.get("transfer", "sdr") == "hlg", "orientation": Orientation(cw)}
 
 
 def find_recipe(name_or_path: str | Path) -> Path:
@@ -320,6 +344,7 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
             raise bf.err("behind", f"no camera {', '.join(unknown)} in the rig (cameras: {', '.join(names)})")
         if len(set(behind)) == len(names):
             raise bf.err("behind", "at least one camera must see the board's front")
+    video = _video(_Fields(rig.data.get("video", {}), "rig.video."))
     render = _Fields(data.get("render", {}), "render.")
     render.num("scale", 1.0, lo=0.02, hi=4)
     render.num("noise", 2.0, lo=0, hi=50)
@@ -350,5 +375,22 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
         duration_s=top.num("duration_s", 4.0, lo=0.05, hi=3600), fps=top.num("fps", 30.0, lo=1, hi=240),
         cameras=cameras, clock=clock.data, people_count=n_people, people=persons, height_range=hr,
         motion=motion.data | {"kind": kind}, audio=audio.data | {"sample_rate": sr}, claps=claps,
-        ltc=ltc, tmcd=tmcd, board=board, render=render.data, path=path, raw=data, flash=flash,
+        ltc=ltc, tmcd=tmcd, board=board, render=render.data, path=path, raw=data, flash=flash, video=video,
     )
+
+
+def _video(vf: _Fields) -> dict[str, Any]:
+    """[rig.video], checked: codec, bit_depth, transfer, rotation (list), container."""
+    codec = vf.string("codec", "h264", ("h264", "hevc"))
+    depth = int(vf.num("bit_depth", 8, lo=8, hi=10))
+    if depth not in (8, 10) or (codec == "h264" and depth != 8):
+        raise vf.err("bit_depth", "8, or 10 with codec = \"hevc\"")
+    transfer = vf.string("transfer", "sdr", ("sdr", "hlg"))
+    if transfer == "hlg" and depth != 10:
+        raise vf.err("transfer", "HLG needs bit_depth = 10")
+    rot = vf.data.get("rotation", [0])
+    rot = rot if isinstance(rot, list) else [rot]
+    if not rot or any(isinstance(r, bool) or r not in (0, 90, 180, 270) for r in rot):
+        raise vf.err("rotation", "expected 0, 90, 180 or 270 (or a list of them, cycled over the cameras)")
+    return {"codec": codec, "bit_depth": depth, "transfer": transfer, "rotation": [int(r) for r in rot],
+            "container": vf.string("container", "mp4", ("mp4", "mov"))}

@@ -92,7 +92,8 @@ class Scene:
             off_s = on_s + dur if dur > 0 else np.full(len(on_s), np.inf)
         chunk = 16
         with VideoWriter(path, w, h, fps=recipe.fps, crf=int(recipe.render.get("crf", 20)), audio_rate=sr,
-                         audio_channels=n_ch, audio_codec=codec, timecode=timecode) as wr:
+                         audio_channels=n_ch, audio_codec=codec, timecode=timecode,
+                         **recipe.writer_options(cam.name)) as wr:
             for c0 in log.track(range(0, T, chunk), f"render {cam.name}"):
                 idx = np.arange(c0, min(c0 + chunk, T))
                 verts, _ = self.pose(s_all[idx])  # (P, n, V, 3)

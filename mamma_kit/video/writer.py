@@ -1,6 +1,7 @@
-"""Writing H.264 video with exact (variable) timestamps, AAC or PCM audio and a timecode.
+"""Writing H.264 or HEVC video with exact (variable) timestamps, AAC or PCM audio and a timecode.
 
-Used by the synthetic renderer (so test captures are real phone-like files) and by the
+Used by the synthetic renderer (so test captures are real phone-like files: HEVC Main10, HLG,
+portrait frames stored landscape with a display matrix, as phones write them) and by the
 report's overlay videos. The file appears atomically when the writer is closed.
 """
 
@@ -15,6 +16,12 @@ import numpy as np
 import os
 
 from mamma_kit.core.io import temp_beside
+from mamma_kit.video.colour import TRC_HLG, sdr_to_hlg
+from mamma_kit.video.orientation import Orientation, display_matrix
+
+CODECS = {"h264": "libx264", "hevc": "libx265"}
+# AVColorPrimaries / AVColorSpace BT.2020 (non-constant luminance), AVColorRange MPEG (limited)
+_BT2020, _RANGE_MPEG = 9, 1
 
 # 90 kHz is the MPEG/QuickTime video clock; every timestamp is stored as an integer tick.
 VIDEO_TIME_BASE = Fraction(1, 90000)
@@ -29,12 +36,18 @@ class VideoWriter:
 
     Timestamps are rounded to 1/90000 s. ``audio_codec`` is "aac" (phones) or
     "pcm_s16le" (needs a .mov container). ``timecode`` 'HH:MM:SS:FF' writes a tmcd track.
+    ``codec`` "h264" (8-bit) or "hevc" with ``bit_depth`` 8 or 10; ``hlg`` writes HLG BT.2020
+    (10-bit HEVC only; the RGB frames given are SDR and are converted, colour.sdr_to_hlg).
+    ``orientation``: frames given as displayed are stored turned back, with the display matrix
+    that shows them so (a portrait phone: Orientation(90), frames stored landscape).
+    ``rotation_deg``: a display matrix only (counter-clockwise degrees, frames stored as given).
     """
 
     def __init__(self, path: str | Path, width: int, height: int, fps: float = 30.0,
                  crf: int = 18, preset: str = "veryfast", audio_rate: int | None = None,
                  audio_channels: int = 1, audio_codec: str = "aac", timecode: str | None = None,
-                 rotation_deg: int = 0, gop: int | None = None):
+                 rotation_deg: int = 0, gop: int | None = None, codec: str = "h264", bit_depth: int = 8,
+                 hlg: bool = False, orientation: Orientation | None = None):
         self.path = Path(path)
         self._tmp = temp_beside(self.path)
         tmp = self._tmp
@@ -44,18 +57,34 @@ class VideoWriter:
         opts = {"movie_timescale": "90000"} if fmt in ("mp4", "mov") else {}
         self.container = av.open(str(tmp), "w", format=fmt, options=opts)
         fps_frac = Fraction(fps).limit_denominator(1001)
-        vs = self.container.add_stream("libx264", rate=fps_frac)
-        vs.width, vs.height = int(width), int(height)
-        vs.pix_fmt = "yuv420p"
+        if codec not in CODECS or bit_depth not in (8, 10) or (codec == "h264" and bit_depth != 8):
+            raise ValueError(f"codec {codec} at {bit_depth} bits: use h264 (8) or hevc (8 or 10)")
+        if hlg and bit_depth != 10:
+            raise ValueError("HLG needs 10-bit video")
+        self.orientation = orientation or Orientation()
+        self.hlg = hlg
+        vs = self.container.add_stream(CODECS[codec], rate=fps_frac)
+        vs.width, vs.height = self.orientation.stored_size(int(width), int(height))
+        vs.pix_fmt = "yuv420p10le" if bit_depth == 10 else "yuv420p"
         vs.time_base = VIDEO_TIME_BASE
         vs.codec_context.time_base = VIDEO_TIME_BASE
-        opts = {"crf": str(crf), "preset": preset, "bf": "0"}
+        if codec == "hevc":
+            opts = {"crf": str(crf), "preset": preset, "x265-params": "bframes=0:log-level=error"}
+            if fmt == "mov":
+                vs.codec_tag = "hvc1"  # what iPhones write (and Apple's players need)
+        else:
+            opts = {"crf": str(crf), "preset": preset, "bf": "0"}
         if gop:
             opts["g"] = str(gop)
         vs.options = opts
+        if hlg:
+            cc = vs.codec_context
+            cc.color_primaries, cc.colorspace, cc.color_trc, cc.color_range = _BT2020, _BT2020, TRC_HLG, _RANGE_MPEG
         if timecode:
             vs.metadata["timecode"] = timecode
-        if rotation_deg:
+        if orientation is not None and not orientation.is_identity:
+            vs.set_display_matrix([int(x) for x in display_matrix(orientation)])
+        elif rotation_deg:
             vs.set_display_rotation(float(rotation_deg))
         self.vs = vs
         self.as_ = None
@@ -88,7 +117,14 @@ class VideoWriter:
         if pts <= self._last_pts:
             raise ValueError(f"timestamps must increase: {t} after {self._last_pts * VIDEO_TIME_BASE}")
         self._last_pts = pts
-        fr = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb_hw3, np.uint8), format="rgb24")
+        stored = self.orientation.unapply(np.asarray(rgb_hw3, np.uint8))
+        if self.hlg:
+            fr = av.VideoFrame.from_ndarray(sdr_to_hlg(stored), format="rgb48le")
+            fr.colorspace, fr.color_primaries, fr.color_trc, fr.color_range = _BT2020, _BT2020, TRC_HLG, _RANGE_MPEG
+            fr = fr.reformat(format=self.vs.pix_fmt, dst_colorspace=_BT2020)
+            fr.color_primaries, fr.color_trc, fr.color_range = _BT2020, TRC_HLG, _RANGE_MPEG
+        else:
+            fr = av.VideoFrame.from_ndarray(np.ascontiguousarray(stored), format="rgb24")
         fr.pts = pts
         fr.time_base = VIDEO_TIME_BASE
         for p in self.vs.encode(fr):
