@@ -17,6 +17,7 @@ CAMS = ("cam01", "cam02", "cam03", "cam04")
 # frames 40-59: the two people close together, in cam03 one passing behind the other
 FIRST, COUNT = 40, 20
 LIMBS = np.r_[11:17, 23:29]
+BODY = np.r_[0, 11:33]  # nose, shoulders to feet
 HAND_REPROJECTION_PCT = 2.0
 
 
@@ -267,3 +268,52 @@ def test_touching_masks_are_resplit_by_the_points_and_read_again(real_ws):
     # the pose tracker's own masks: no re-split (its summary says so), nothing read again
     summ = run_keypoints(real_ws, cameras=[c], pictures=False, force=True)["cameras"][0]
     assert summ["resplit"] == 0 and summ["read_again"] == 0
+
+
+def test_phone_stored_copies_give_the_same_tracks_and_keypoints(real_ws, tmp_path):
+    """Issue 41: the same clips as an upright phone stores them (frames 1920x1080 landscape with a
+    display rotation, HEVC Main10 in a .mov, AAC; the first 10 frames, three dropped in cam02) and the lab's
+    calibration at the codec-padded 1088 columns: the same two tracks per view, keypoints within
+    1 % of the person's height of the original's on the frames both have."""
+    from mamma_kit.core.tracks import nearest_frames
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.keypoints.stage import run_keypoints
+    from mamma_kit.masks.stage import run_track
+    from mamma_kit.pipeline import init_workspace
+    from mamma_kit.video import VideoReader
+    from mamma_kit.video.orientation import Orientation
+    from mamma_kit.video.phone import phone_copy
+
+    vids = []
+    for c in CAMS:
+        src = real_ws.root / "videos" / f"{c}.mp4"
+        vids.append(phone_copy(src, tmp_path / f"{c}.MOV", orientation=Orientation(90), crop=(1080, 1920),
+                               frames=10, drop=(3, 4, 7) if c == "cam02" else ()))
+    info = VideoReader(vids[1]).info
+    assert (info.stored_size, info.rotation_deg, info.codec, info.bit_depth, info.has_audio) == \
+        ((1920, 1080), 90, "hevc", 10, True)
+    assert (info.width, info.height, info.n_frames) == (1080, 1920, 7)
+    init_workspace(tmp_path / "ws", vids, calibration=REAL / "calibration" / "Calib.qca.txt", people=2)
+    ws = Workspace(tmp_path / "ws")
+    run_track(ws, backend="pose", people=2, pictures=False)
+    run_keypoints(ws, pictures=False)
+    for c in CAMS:
+        a_mt, b_mt = MaskTracks.load(real_ws.mask_file(c)), MaskTracks.load(ws.mask_file(c))
+        assert len(b_mt.track_ids) == len(a_mt.track_ids) == 2, c
+        a, b = KeypointTracks.load(real_ws.keypoints_file(c)), KeypointTracks.load(ws.keypoints_file(c))
+        ia = nearest_frames(b.frame_times, a.frame_times)  # the copy's frames in the original
+        errs = []
+        for tb, ta in enumerate(ia):
+            for kb in range(2):
+                if not b.valid[tb, kb]:
+                    continue
+                # the original's track of this person: the one whose box centre is nearest
+                cb = b_mt.boxes[tb, kb].reshape(2, 2).mean(0)
+                ka = int(np.argmin([np.linalg.norm(a_mt.boxes[ta, k].reshape(2, 2).mean(0) - cb) for k in range(2)]))
+                h = a_mt.boxes[ta, ka, 3] - a_mt.boxes[ta, ka, 1]
+                if not a.valid[ta, ka] or np.linalg.norm(a_mt.boxes[ta, ka].reshape(2, 2).mean(0) - cb) > 0.1 * h:
+                    continue  # the original did not track this person here
+                vis = (a.visibility[ta, ka, BODY] > 0.5) & (b.visibility[tb, kb, BODY] > 0.5)
+                errs += list(np.linalg.norm(a.xy[ta, ka, BODY] - b.xy[tb, kb, BODY], axis=1)[vis] / h * 100)
+        assert len(errs) > 100, c
+        assert np.median(errs) < 1.0, f"{c}: keypoints {np.median(errs):.2f} % of the height from the original's"
