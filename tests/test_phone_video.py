@@ -184,3 +184,21 @@ def test_synth_writes_phone_like_files_on_request(tmp_path, cli):
     rand = np.abs(img[rng.integers(0, img.shape[0], 500), rng.integers(0, img.shape[1], 500)].astype(float)
                   - med).sum(1)
     assert np.median(on) > 2 * np.median(rand)
+
+
+def test_frames_scaled_while_decoding_match_the_full_frame_scaled(tmp_path):
+    """frames(max_side=...): the displayed frame at working_size (a 4K frame tracked at half size),
+    the same picture as the full frame scaled afterwards; frames within max_side come as they are."""
+    import cv2
+
+    img = np.repeat(np.repeat(picture(96, 64), 4, 0), 4, 1)  # 256x384 displayed
+    p = write(tmp_path / "big.mov", img, codec="hevc", bit_depth=10, orientation=Orientation(90))
+    r = VideoReader(p)
+    assert r.working_size(192) == (128, 192) and r.working_size(384) == (256, 384)
+    _, small = next(iter(r.frames(max_side=192)))
+    _, full = next(iter(r.frames()))
+    assert small.shape == (192, 128, 3)
+    ref = cv2.resize(full, (128, 192), interpolation=cv2.INTER_AREA)
+    assert np.abs(small.astype(int) - ref).mean() < 3
+    _, same = next(iter(r.frames(max_side=384)))
+    assert np.array_equal(same, full)

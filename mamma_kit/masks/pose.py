@@ -47,9 +47,26 @@ REACH_SHARE = 0.16
 SAME_SHARE = 0.06
 # the limb joints (shoulders, elbows, wrists, hips, knees, ankles) that tell people apart
 BODY = np.r_[11:17, 23:29]
+# frames longer than this are tracked at this size (4K at half size: the same crops and masks for the
+# networks, a quarter of the per-pixel work; 1080p and smaller as they are)
+WORK_SIDE = 1920
 # the same joints with left and right swapped: BlazePose can swap sides on one person from one ROI
 # to the next (a person seen from behind), which must not make two people of one
 BODY_SWAPPED = np.r_[12, 11, 14, 13, 16, 15, 24, 23, 26, 25, 28, 27]
+
+
+class _ScaledBuilder:
+    """A MaskTrackBuilder at the video's size fed masks at the working size (nearest-neighbour up)."""
+
+    def __init__(self, inner: MaskTrackBuilder, work_wh: tuple[int, int]):
+        self.inner, self.work_wh = inner, tuple(work_wh)
+        self.same = self.work_wh == tuple(inner.image_size)
+
+    def add(self, t: int, track: int, mask_hw: np.ndarray, score: float = 1.0) -> None:
+        if not self.same:
+            mask_hw = cv2.resize(np.ascontiguousarray(mask_hw, np.uint8), tuple(self.inner.image_size),
+                                 interpolation=cv2.INTER_NEAREST).view(bool)
+        self.inner.add(t, track, mask_hw, score)
 
 
 def limb_distance(xy_a: np.ndarray, xy_b: np.ndarray) -> float:
@@ -241,13 +258,16 @@ class PoseBackend:
 
         rd = VideoReader(cam.video, cam.rotation)
         times = rd.timestamps
-        W, H = rd.size
+        # the networks see 224-256 px crops and their masks come at 256x256: tracking works on frames
+        # at most WORK_SIDE long (a 4K frame at half size, smaller ones as they are) and only the
+        # masks kept are scaled up to the video's size
+        W, H = rd.working_size(WORK_SIDE)
         est = self.est
-        builder = MaskTrackBuilder(cam.name, (W, H), times)
+        builder = _ScaledBuilder(MaskTrackBuilder(cam.name, rd.size, times), (W, H))
         tracks: list[_Track] = []
         next_id = 0
         prev: dict[int, np.ndarray] = {}  # track id -> its mask in the previous frame
-        for t, img in log.track(rd.frames(), f"track {cam.name} (pose)", total=len(times)):
+        for t, img in log.track(rd.frames(max_side=WORK_SIDE), f"track {cam.name} (pose)", total=len(times)):
             ti = int(np.argmin(np.abs(times - t)))
             det = self._detections(img, ti)
             # candidates: every track's followed ROI (its last good one while missed) and every detection
@@ -293,7 +313,7 @@ class PoseBackend:
                         alive.append(tr)
             self._coast(tracks, got, res, source, builder, prev, ti, W, H)
             tracks = alive
-        mt = builder.build()
+        mt = builder.inner.build()
         summ = track_summary(mt)
         mt, chosen = select_people(mt, self.people)
         summ.update({"detected_tracks": summ["tracks"], **track_summary(mt), "kept": chosen})

@@ -196,12 +196,25 @@ class VideoReader:
         return Orientation(), "sdr", 8
 
     # ---- frames -------------------------------------------------------------------
+    def working_size(self, max_side: int | None) -> tuple[int, int]:
+        """The displayed (width, height) scaled so the longer side is at most ``max_side``."""
+        w, h = self.size
+        if not max_side or max(w, h) <= max_side:
+            return w, h
+        s = max_side / max(w, h)
+        return max(1, round(w * s)), max(1, round(h * s))
+
     def frames(self, start: float | None = None, end: float | None = None,
-               fmt: str = "rgb24") -> Iterator[tuple[float, np.ndarray]]:
+               fmt: str = "rgb24", max_side: int | None = None) -> Iterator[tuple[float, np.ndarray]]:
         """Yield (t, image_hw3 uint8) for frames with start <= t < end, in time order, as displayed
-        (turned, HDR tone-mapped); ``fmt`` "rgb24" or "gray" (any PyAV format for SDR files)."""
+        (turned, HDR tone-mapped); ``fmt`` "rgb24" or "gray" (any PyAV format for SDR files).
+        ``max_side``: frames scaled down (area-averaged, while converting from YUV: one pass) so
+        their longer side is at most this (working_size); a model that works at a fixed size does
+        not pay for a 4K frame's pixels."""
         info = self.info
         shown, hdr = info.orientation, info.transfer if info.transfer != "sdr" else None
+        ww, wh = self.working_size(max_side)
+        scale = None if (ww, wh) == self.size else shown.stored_size(ww, wh)
         c = open_container(self.path)
         try:
             vs = c.streams.video[0]
@@ -218,7 +231,7 @@ class VideoReader:
                         continue
                     if end is not None and t >= end - 1e-9:
                         break
-                    yield t, shown.apply(_pixels(fr, fmt, hdr))
+                    yield t, shown.apply(_pixels(fr, fmt, hdr, scale))
             except av.error.FFmpegError as e:
                 raise corrupt_error(self.path, t, e) from None
         finally:
@@ -261,11 +274,13 @@ class VideoReader:
                     return
 
 
-def _pixels(fr, fmt: str, hdr: str | None) -> np.ndarray:
-    """The decoded frame as a ``fmt`` array; HDR through the tone map (colour.py)."""
+def _pixels(fr, fmt: str, hdr: str | None, size: tuple[int, int] | None = None) -> np.ndarray:
+    """The decoded frame as a ``fmt`` array (scaled to the stored ``size`` (w, h) if given); HDR
+    through the tone map (colour.py)."""
+    kw = {} if size is None else {"width": size[0], "height": size[1], "interpolation": "AREA"}
     if hdr is None:
-        return fr.to_ndarray(format=fmt)
-    rgb = hdr_to_sdr(fr.to_ndarray(format="rgb48le"), hdr)
+        return fr.to_ndarray(format=fmt, **kw)
+    rgb = hdr_to_sdr(fr.to_ndarray(format="rgb48le", **kw), hdr)
     if fmt == "rgb24":
         return rgb
     if fmt == "gray":
