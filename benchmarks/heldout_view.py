@@ -24,7 +24,10 @@ sure hand points triangulated, with PCK at 5 % as well (a hand is about 10 % of 
 --fit-hands off fits without the hand points (FitConfig.hand_keypoint_weight 0) for comparison.
 
     nice -n 10 python benchmarks/heldout_view.py [--root /work/bench/heldout] [--threads 2] [--hands off]
-        [--fit-hands off]
+        [--fit-hands off] [--phone]
+
+--phone: the same on the videos as an upright phone stores them (portrait frames stored landscape
+with a display rotation, HEVC Main10 .MOV, AAC, three frames dropped in cam02; phone_videos).
 """
 
 from __future__ import annotations
@@ -58,12 +61,32 @@ def cli(*args) -> None:
             raise RuntimeError(f"mamma-kit {' '.join(map(str, args))} exited with {e.code}") from None
 
 
-def prepare(root: Path, threads: int, hands: str = "auto"):
+def phone_videos(root: Path) -> list[Path]:
+    """The four videos as an upright phone stores them (issue 41): frames 1920x1080 landscape with a
+    display rotation of 90 degrees, HEVC Main10 .MOV, AAC, frames 5, 6 and 13 dropped in cam02; the
+    lab's calibration is at the codec-padded 1088 columns."""
+    from real_workspace import REAL
+
+    from mamma_kit.video.orientation import Orientation
+    from mamma_kit.video.phone import phone_copy
+
+    out = []
+    for src in sorted((REAL / "videos").glob("cam*.mp4")):
+        dst = root / "phone-videos" / f"{src.stem}.MOV"
+        if not dst.is_file():
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            phone_copy(src, dst, orientation=Orientation(90), crop=(1080, 1920),
+                       drop=(5, 6, 13) if src.stem == "cam02" else ())
+        out.append(dst)
+    return out
+
+
+def prepare(root: Path, threads: int, hands: str = "auto", phone: bool = False):
     """The real workspace through keypoints, landmarks and the match of all cameras (synced clocks)."""
-    ws = real_workspace(root, stages=True)
+    ws = real_workspace(root, stages=True, videos=phone_videos(root) if phone else None)
     if not ws.timing.is_file():
         cli("sync", ws.root, "--method", "synced", "-q")
-    cli("landmarks", ws.root, "--threads", threads, "--hands", hands, "-q")
+    cli("landmarks", ws.root, "--hands", hands, "-q")  # one thread per unit, units side by side
     cli("match", ws.root, "-q")
     return ws
 
@@ -220,6 +243,7 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true", help="evaluate held-out fits already in ROOT/heldout/<cam>")
     ap.add_argument("--hands", default="auto", help="the landmarks' hand refinement: auto (default) or off")
     ap.add_argument("--fit-hands", default="on", choices=("on", "off"), help="the hand model's points in the fit")
+    ap.add_argument("--phone", action="store_true", help="the videos as an upright phone stores them (phone_videos)")
     a = ap.parse_args()
     from mamma_kit.body.kp_regressor import hand_regressor, keypoint_regressor, stacked
     from mamma_kit.body.model import load_body_model
@@ -228,7 +252,7 @@ def main() -> None:
     print(f"command: {' '.join(sys.argv)}")
     print(f"load average before: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     t0 = time.perf_counter()
-    ws = prepare(a.root, a.threads, a.hands)
+    ws = prepare(a.root, a.threads, a.hands, a.phone)
     log.set_quiet(True)
     model = load_body_model(ws.load_capture().body_model)
     reg = stacked(keypoint_regressor(model), hand_regressor(model))

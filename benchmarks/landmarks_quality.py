@@ -78,7 +78,7 @@ def prepare(root: Path, name: str) -> Path:
 
 def evaluate(ws: Path, weights: Path, threads: int, hands: str = "off") -> dict:
     t0 = time.perf_counter()
-    mk("landmarks", ws, "--weights", weights, "--threads", threads, "--hands", hands, "--force", "-q")
+    mk("landmarks", ws, "--weights", weights, "--hands", hands, "--force", "-q")
     secs = time.perf_counter() - t0
     out = json.loads(mk("eval", ws, "--only", "landmarks", "--json", capture=True))["landmarks"]
     out["seconds"] = secs

@@ -12,8 +12,9 @@ from pathlib import Path
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real" / "pose2sim-multiperson"
 
 
-def real_workspace(root: Path, stages: bool = False, force: bool = False):
-    """The Workspace in root/ws; with ``stages``, its pose tracks and keypoints are (re)made as needed."""
+def real_workspace(root: Path, stages: bool = False, force: bool = False, videos: list[Path] | None = None):
+    """The Workspace in root/ws; with ``stages``, its pose tracks and keypoints are (re)made as needed.
+    ``videos``: other files of the same four cameras (e.g. phone-stored copies) instead of the originals."""
     from mamma_kit.cli.app import main as cli
     from mamma_kit.core import log
     from mamma_kit.core.workspace import Workspace
@@ -22,7 +23,7 @@ def real_workspace(root: Path, stages: bool = False, force: bool = False):
     log.set_quiet(True)
     ws_path = Path(root) / "ws"
     if not (ws_path / "capture.toml").is_file():
-        init_workspace(ws_path, sorted((REAL / "videos").glob("cam*.mp4")),
+        init_workspace(ws_path, videos or sorted((REAL / "videos").glob("cam*.mp4")),
                        calibration=REAL / "calibration" / "Calib.qca.txt", people=2)
     if stages:
         for cmd in (["track", str(ws_path), "--backend", "pose", "--people", "2"], ["keypoints", str(ws_path)]):
