@@ -23,7 +23,8 @@ AUDIO_RATE = 48000
 
 def phone_copy(src: str | Path, dst: str | Path, *, orientation: Orientation = Orientation(90), codec: str = "hevc",
                bit_depth: int = 10, hlg: bool = False, drop: Iterable[int] = (), crop: tuple[int, int] | None = None,
-               frames: int | None = None, crf: int = 18, audio: bool = True, seed: int = 0) -> Path:
+               frames: int | None = None, crf: int = 18, preset: str = "veryfast", audio: bool = True,
+               seed: int = 0) -> Path:
     """Write ``dst`` from ``src``'s displayed frames. ``crop`` (width, height): keep the top-left
     part of each frame (a 1088-row source becomes the 1080 rows a phone stores); ``frames``: only
     the first ones; ``audio``: the source's audio, or quiet noise (48 kHz AAC) where it has none."""
@@ -44,7 +45,7 @@ def phone_copy(src: str | Path, dst: str | Path, *, orientation: Orientation = O
             dur = float(info.timestamps[n - 1] - info.timestamps[0]) + 1.0 / max(info.nominal_fps, 1.0)
             sound = (0.01 * rng.standard_normal((int(dur * AUDIO_RATE), 1)).astype(np.float32), AUDIO_RATE,
                      float(info.timestamps[0]))
-    with VideoWriter(dst, w, h, fps=info.nominal_fps, crf=crf, codec=codec, bit_depth=bit_depth, hlg=hlg,
+    with VideoWriter(dst, w, h, fps=info.nominal_fps, crf=crf, preset=preset, codec=codec, bit_depth=bit_depth, hlg=hlg,
                      orientation=orientation, audio_rate=sound[1] if sound else None,
                      audio_channels=sound[0].shape[1] if sound else 1) as wr:
         if sound is not None:
