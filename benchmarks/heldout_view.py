@@ -24,10 +24,11 @@ sure hand points triangulated, with PCK at 5 % as well (a hand is about 10 % of 
 --fit-hands off fits without the hand points (FitConfig.hand_keypoint_weight 0) for comparison.
 
     nice -n 10 python benchmarks/heldout_view.py [--root /work/bench/heldout] [--threads 2] [--hands off]
-        [--fit-hands off] [--phone]
+        [--fit-hands off] [--phone rotated|upright]
 
---phone: the same on the videos as an upright phone stores them (portrait frames stored landscape
-with a display rotation, HEVC Main10 .MOV, AAC, three frames dropped in cam02; phone_videos).
+--phone rotated: the same on the videos as an upright phone stores them (portrait frames stored
+landscape with a display rotation, HEVC Main10 .MOV, AAC, three frames dropped in cam02;
+phone_videos); --phone upright: the same copies without the rotation (the encoding's share).
 """
 
 from __future__ import annotations
@@ -61,10 +62,11 @@ def cli(*args) -> None:
             raise RuntimeError(f"mamma-kit {' '.join(map(str, args))} exited with {e.code}") from None
 
 
-def phone_videos(root: Path) -> list[Path]:
+def phone_videos(root: Path, turn: int = 90) -> list[Path]:
     """The four videos as an upright phone stores them (issue 41): frames 1920x1080 landscape with a
-    display rotation of 90 degrees, HEVC Main10 .MOV, AAC, frames 5, 6 and 13 dropped in cam02; the
-    lab's calibration is at the codec-padded 1088 columns."""
+    display rotation of 90 degrees (``turn`` 0: the same copy stored upright, for the encoding's
+    share), HEVC Main10 .MOV, AAC, frames 5, 6 and 13 dropped in cam02; the lab's calibration is at
+    the codec-padded 1088 columns."""
     from real_workspace import REAL
 
     from mamma_kit.video.orientation import Orientation
@@ -75,15 +77,16 @@ def phone_videos(root: Path) -> list[Path]:
         dst = root / "phone-videos" / f"{src.stem}.MOV"
         if not dst.is_file():
             dst.parent.mkdir(parents=True, exist_ok=True)
-            phone_copy(src, dst, orientation=Orientation(90), crop=(1080, 1920),
+            phone_copy(src, dst, orientation=Orientation(turn), crop=(1080, 1920),
                        drop=(5, 6, 13) if src.stem == "cam02" else ())
         out.append(dst)
     return out
 
 
-def prepare(root: Path, threads: int, hands: str = "auto", phone: bool = False):
+def prepare(root: Path, threads: int, hands: str = "auto", phone: str | None = None):
     """The real workspace through keypoints, landmarks and the match of all cameras (synced clocks)."""
-    ws = real_workspace(root, stages=True, videos=phone_videos(root) if phone else None)
+    turn = {"rotated": 90, "upright": 0}.get(phone or "", None)
+    ws = real_workspace(root, stages=True, videos=phone_videos(root, turn) if turn is not None else None)
     if not ws.timing.is_file():
         cli("sync", ws.root, "--method", "synced", "-q")
     cli("landmarks", ws.root, "--hands", hands, "-q")  # one thread per unit, units side by side
@@ -243,7 +246,8 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true", help="evaluate held-out fits already in ROOT/heldout/<cam>")
     ap.add_argument("--hands", default="auto", help="the landmarks' hand refinement: auto (default) or off")
     ap.add_argument("--fit-hands", default="on", choices=("on", "off"), help="the hand model's points in the fit")
-    ap.add_argument("--phone", action="store_true", help="the videos as an upright phone stores them (phone_videos)")
+    ap.add_argument("--phone", choices=("rotated", "upright"), default=None,
+                    help="phone-stored copies (phone_videos): rotated as phones store them, or the same stored upright")
     a = ap.parse_args()
     from mamma_kit.body.kp_regressor import hand_regressor, keypoint_regressor, stacked
     from mamma_kit.body.model import load_body_model
