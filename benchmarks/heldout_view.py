@@ -62,11 +62,11 @@ def cli(*args) -> None:
             raise RuntimeError(f"mamma-kit {' '.join(map(str, args))} exited with {e.code}") from None
 
 
-def phone_videos(root: Path, turn: int = 90) -> list[Path]:
+def phone_videos(root: Path, turn: int = 90, crf: int = 18) -> list[Path]:
     """The four videos as an upright phone stores them (issue 41): frames 1920x1080 landscape with a
     display rotation of 90 degrees (``turn`` 0: the same copy stored upright, for the encoding's
     share), HEVC Main10 .MOV, AAC, frames 5, 6 and 13 dropped in cam02; the lab's calibration is at
-    the codec-padded 1088 columns."""
+    the codec-padded 1088 columns; ``crf`` the HEVC quality."""
     from real_workspace import REAL
 
     from mamma_kit.video.orientation import Orientation
@@ -77,16 +77,16 @@ def phone_videos(root: Path, turn: int = 90) -> list[Path]:
         dst = root / "phone-videos" / f"{src.stem}.MOV"
         if not dst.is_file():
             dst.parent.mkdir(parents=True, exist_ok=True)
-            phone_copy(src, dst, orientation=Orientation(turn), crop=(1080, 1920),
+            phone_copy(src, dst, orientation=Orientation(turn), crop=(1080, 1920), crf=crf,
                        drop=(5, 6, 13) if src.stem == "cam02" else ())
         out.append(dst)
     return out
 
 
-def prepare(root: Path, threads: int, hands: str = "auto", phone: str | None = None):
+def prepare(root: Path, threads: int, hands: str = "auto", phone: str | None = None, crf: int = 18):
     """The real workspace through keypoints, landmarks and the match of all cameras (synced clocks)."""
     turn = {"rotated": 90, "upright": 0}.get(phone or "", None)
-    ws = real_workspace(root, stages=True, videos=phone_videos(root, turn) if turn is not None else None)
+    ws = real_workspace(root, stages=True, videos=phone_videos(root, turn, crf) if turn is not None else None)
     if not ws.timing.is_file():
         cli("sync", ws.root, "--method", "synced", "-q")
     cli("landmarks", ws.root, "--hands", hands, "-q")  # one thread per unit, units side by side
@@ -248,6 +248,7 @@ def main() -> None:
     ap.add_argument("--fit-hands", default="on", choices=("on", "off"), help="the hand model's points in the fit")
     ap.add_argument("--phone", choices=("rotated", "upright"), default=None,
                     help="phone-stored copies (phone_videos): rotated as phones store them, or the same stored upright")
+    ap.add_argument("--phone-crf", type=int, default=18, help="the copies' HEVC quality (lower: more bits)")
     a = ap.parse_args()
     from mamma_kit.body.kp_regressor import hand_regressor, keypoint_regressor, stacked
     from mamma_kit.body.model import load_body_model
@@ -256,7 +257,7 @@ def main() -> None:
     print(f"command: {' '.join(sys.argv)}")
     print(f"load average before: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     t0 = time.perf_counter()
-    ws = prepare(a.root, a.threads, a.hands, a.phone)
+    ws = prepare(a.root, a.threads, a.hands, a.phone, a.phone_crf)
     log.set_quiet(True)
     model = load_body_model(ws.load_capture().body_model)
     reg = stacked(keypoint_regressor(model), hand_regressor(model))
