@@ -312,9 +312,9 @@ def init_workspace(root: str | Path, videos: list[Path], board_videos: list[Path
     for p in videos + (board_videos or []):
         if not p.is_file():
             raise UserError(f"video not found: {p}", "check the path")
-        VideoReader(p).info  # a corrupt or non-video file ends here, before anything is written
-    for n, p in zip(names, videos):  # what every stage will see: the displayed frames
-        log.info(f"{n}: {p.name}: {VideoReader(p).info.describe()}")
+        info = VideoReader(p).info  # a corrupt or non-video file ends here, before anything is written
+        if p in videos:  # what every stage will see: the displayed frames
+            log.info(f"{names[videos.index(p)]}: {p.name}: {info.describe()}")
     rig = None if calibration is None else _given_calibration(Path(calibration), names, videos, bool(board_videos))
     ws.root.mkdir(parents=True, exist_ok=True)
     if rig is not None:

@@ -35,13 +35,21 @@ def write(path, img, **kw):
 def test_rotations_are_shown_as_opencv_shows_them(tmp_path):
     """OpenCV's VideoCapture turns frames by the display matrix (CAP_PROP_ORIENTATION_AUTO):
     for every rotation PyAV writes, the reader gives OpenCV's picture."""
+    import av
     import cv2
 
     img = picture()
     for ccw in (90, -90, 180):
         p = tmp_path / f"r{ccw}.mp4"
-        with VideoWriter(p, img.shape[1], img.shape[0], fps=30, crf=10, rotation_deg=ccw) as w:
-            w.write_frame(img, 0.0)
+        with av.open(str(p), "w") as c:  # PyAV's own display matrix, not display_matrix()
+            vs = c.add_stream("libx264", rate=30)
+            vs.width, vs.height, vs.pix_fmt = img.shape[1], img.shape[0], "yuv420p"
+            vs.options = {"crf": "10"}
+            vs.set_display_rotation(float(ccw))
+            for pkt in vs.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                c.mux(pkt)
+            for pkt in vs.encode():
+                c.mux(pkt)
         ok, bgr = cv2.VideoCapture(str(p)).read()
         assert ok
         t, ours = next(iter(VideoReader(p).frames()))

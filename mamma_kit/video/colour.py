@@ -41,6 +41,9 @@ BT2020_TO_709_33 = np.array([[1.6605, -0.5876, -0.0728],
 BT2020_LUMA_3 = np.array([0.2627, 0.6780, 0.0593], np.float32)
 
 _CODES = 65536  # 16-bit lookup tables
+# BT.2100 HLG constants
+_HLG_A, _HLG_B = 0.17883277, 0.28466892
+_HLG_C = 0.5 - _HLG_A * np.log(4 * _HLG_A)
 
 
 def transfer_of(color_trc: int | None) -> str:
@@ -50,10 +53,8 @@ def transfer_of(color_trc: int | None) -> str:
 
 def hlg_inverse_oetf(e: np.ndarray) -> np.ndarray:
     """HLG signal E' in [0, 1] -> normalised scene light E in [0, 1] (BT.2100 table 5)."""
-    a, b = 0.17883277, 0.28466892
-    c = 0.5 - a * np.log(4 * a)
     e = np.clip(np.asarray(e, np.float64), 0, 1)
-    return np.where(e <= 0.5, e * e / 3.0, (np.exp((e - c) / a) + b) / 12.0)
+    return np.where(e <= 0.5, e * e / 3.0, (np.exp((e - _HLG_C) / _HLG_A) + _HLG_B) / 12.0)
 
 
 def pq_eotf(e: np.ndarray) -> np.ndarray:
@@ -116,8 +117,6 @@ def sdr_to_hlg(rgb8_hw3: np.ndarray) -> np.ndarray:
     f_d = np.clip(lin2020, 0, None) * (REFERENCE_WHITE_CD / HLG_PEAK_CD)  # display light, 1 = peak
     y = np.maximum(f_d @ BT2020_LUMA_3, 1e-9)
     e_s = f_d * (y ** ((1.0 - HLG_GAMMA) / HLG_GAMMA))[..., None]  # inverse OOTF
-    a, b = 0.17883277, 0.28466892
-    c = 0.5 - a * np.log(4 * a)
     e_s = np.clip(e_s, 0, 1)
-    sig = np.where(e_s <= 1 / 12, np.sqrt(3 * e_s), a * np.log(np.maximum(12 * e_s - b, 1e-12)) + c)
+    sig = np.where(e_s <= 1 / 12, np.sqrt(3 * e_s), _HLG_A * np.log(np.maximum(12 * e_s - _HLG_B, 1e-12)) + _HLG_C)
     return np.round(np.clip(sig, 0, 1) * 65535).astype(np.uint16)

@@ -40,13 +40,12 @@ class VideoWriter:
     (10-bit HEVC only; the RGB frames given are SDR and are converted, colour.sdr_to_hlg).
     ``orientation``: frames given as displayed are stored turned back, with the display matrix
     that shows them so (a portrait phone: Orientation(90), frames stored landscape).
-    ``rotation_deg``: a display matrix only (counter-clockwise degrees, frames stored as given).
     """
 
     def __init__(self, path: str | Path, width: int, height: int, fps: float = 30.0,
                  crf: int = 18, preset: str = "veryfast", audio_rate: int | None = None,
                  audio_channels: int = 1, audio_codec: str = "aac", timecode: str | None = None,
-                 rotation_deg: int = 0, gop: int | None = None, codec: str = "h264", bit_depth: int = 8,
+                 gop: int | None = None, codec: str = "h264", bit_depth: int = 8,
                  hlg: bool = False, orientation: Orientation | None = None):
         self.path = Path(path)
         self._tmp = temp_beside(self.path)
@@ -82,10 +81,8 @@ class VideoWriter:
             cc.color_primaries, cc.colorspace, cc.color_trc, cc.color_range = _BT2020, _BT2020, TRC_HLG, _RANGE_MPEG
         if timecode:
             vs.metadata["timecode"] = timecode
-        if orientation is not None and not orientation.is_identity:
-            vs.set_display_matrix([int(x) for x in display_matrix(orientation)])
-        elif rotation_deg:
-            vs.set_display_rotation(float(rotation_deg))
+        if not self.orientation.is_identity:
+            vs.set_display_matrix([int(x) for x in display_matrix(self.orientation)])
         self.vs = vs
         self.as_ = None
         self.audio_rate = audio_rate
