@@ -1,5 +1,5 @@
 """The workspace the real-recording benchmarks share: ../shared/real/pose2sim-multiperson with its
-Qualisys calibration (`init --calibration`, two people), made once in ROOT/ws and reused.
+Qualisys calibration (`init --calibration --synced`, two people), made once in ROOT/ws and reused.
 
     from real_workspace import real_workspace
     ws = real_workspace(root, stages=True)   # + `track --backend pose --people 2` and `keypoints`
@@ -24,7 +24,7 @@ def real_workspace(root: Path, stages: bool = False, force: bool = False, videos
     ws_path = Path(root) / "ws"
     if not (ws_path / "capture.toml").is_file():
         init_workspace(ws_path, videos or sorted((REAL / "videos").glob("cam*.mp4")),
-                       calibration=REAL / "calibration" / "Calib.qca.txt", people=2)
+                       calibration=REAL / "calibration" / "Calib.qca.txt", people=2, synced=True)
     if stages:
         for cmd in (["track", str(ws_path), "--backend", "pose", "--people", "2"], ["keypoints", str(ws_path)]):
             try:

@@ -12,7 +12,7 @@ from mamma_kit.cli.root import app
 from mamma_kit.core import log
 
 
-@app.command("board")
+@app.command("board", rich_help_panel="Stages")
 def board_cmd(
     spec: str = typer.Argument(..., help="Board spec TOML (or a built-in name such as charuco-a1)."),
     out: Path = typer.Option(Path("board.pdf"), "--out", "-o", help="Output: .pdf (vector), .svg or .png."),

@@ -10,7 +10,7 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.cli.root import app
 
 body_app = typer.Typer(help="Body model: info, mesh export.", no_args_is_help=True)
-app.add_typer(body_app, name="body")
+app.add_typer(body_app, name="body", rich_help_panel="Tools")
 
 BodyModelOpt = typer.Option("open", "--body-model",
                             help="'open' (embedded open body) or an SMPL-X .npz file / folder with SMPLX_*.npz.")

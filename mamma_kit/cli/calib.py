@@ -13,7 +13,7 @@ from mamma_kit.core import log
 
 calib_app = typer.Typer(help="Calibration files: convert between mamma-kit, MAMMA YAML, EasyMocap, anipose, "
                              "Caliscope, OpenCV JSON and Vicon .xcp; read Qualisys .qca.txt.", no_args_is_help=True)
-app.add_typer(calib_app, name="calib")
+app.add_typer(calib_app, name="calib", rich_help_panel="Tools")
 
 FMT_HELP = ("mamma-kit | mamma-yaml | easymocap | anipose | caliscope | opencv-json | vicon-xcp | qualisys (read "
             "only; .qca.txt) (inferred from the name if omitted)")

@@ -13,12 +13,12 @@ from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 
 
-@app.command("calibrate")
+@app.command("calibrate", rich_help_panel="Stages")
 def calibrate_cmd(
     targets: List[Path] = typer.Argument(..., help="A workspace folder, or one board video per camera "
                                                    "(camera names = file stems)."),
     board: Optional[str] = typer.Option(None, "--board", "-b", help="Board spec TOML or built-in name "
-                                                                    "(workspace: default [board] spec)."),
+                                                                    "(workspace: default \\[board] spec)."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output calibration.toml (workspace: "
                                                                  "WORKSPACE/calibration.toml)."),
     model: str = typer.Option("radtan", "--model", help="Lens model: radtan (5 coefficients), rational or fisheye."),

@@ -72,7 +72,7 @@ def headline(ev: dict) -> dict:
     return out
 
 
-@app.command()
+@app.command(rich_help_panel="Your capture")
 def demo(
     out: Path = typer.Option(Path("demo-out"), "--out", help="Folder for the demo capture and its results."),
     frames: int = typer.Option(60, "--frames", min=8, help="Frames per camera (30 fps)."),

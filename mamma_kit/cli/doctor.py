@@ -97,7 +97,7 @@ def _stage_checks() -> list[dict]:
     return out
 
 
-@app.command()
+@app.command(rich_help_panel="Tools")
 def doctor(json_out: bool = JsonOpt) -> None:
     """Show versions, available body models and weights, and how to fix what is missing."""
     report = run_checks()

@@ -13,7 +13,7 @@ from mamma_kit.core import log
 from mamma_kit.core.io import to_json
 
 
-@app.command("eval")
+@app.command("eval", rich_help_panel="Synthetic captures and training")
 def eval_cmd(
     workspace: Path = typer.Argument(..., help="A synthetic capture workspace (with gt/)."),
     only: Optional[str] = typer.Option(None, "--only", help="Comma-separated groups: calibration, timing, masks, "

@@ -30,7 +30,7 @@ def parse_stages(text: str) -> int:
     return b
 
 
-@app.command("fit")
+@app.command("fit", rich_help_panel="Stages")
 def fit_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace (calibration.toml, timing.toml, landmarks/)."),
     cameras: Optional[int] = typer.Option(None, "--cameras", help="Use K cameras chosen by farthest-point sampling."),
@@ -81,7 +81,7 @@ def fit_cmd(
                  f"median reprojection px: {med}")
 
 
-@app.command("pick-cameras")
+@app.command("pick-cameras", rich_help_panel="Tools")
 def pick_cameras_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace with calibration.toml."),
     count: int = typer.Option(..., "--count", help="How many cameras to choose."),

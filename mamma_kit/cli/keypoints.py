@@ -11,7 +11,7 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.cli.root import app
 
 
-@app.command("keypoints")
+@app.command("keypoints", rich_help_panel="Stages")
 def keypoints_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace with masks/<cam>.npz (run `track` first)."),
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated subset of cameras."),

@@ -13,7 +13,7 @@ from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 
 
-@app.command("landmarks")
+@app.command("landmarks", rich_help_panel="Stages")
 def landmarks_cmd(
     workspace: Optional[Path] = typer.Argument(None, help="Capture workspace (masks/<cam>.npz + videos)."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="Weights file: a mamma-kit .pt, or the official "

@@ -11,7 +11,7 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.cli.root import app
 
 
-@app.command("match")
+@app.command("match", rich_help_panel="Stages")
 def match_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace with landmarks/<cam>.npz and calibration.toml."),
     cameras: Optional[str] = typer.Option(None, "--cameras", help="Comma-separated subset of cameras."),

@@ -11,28 +11,8 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.cli.root import app
 
 
-@app.command("capture-to-smplx")
-def capture_to_smplx_cmd(
-    workspace: Path = typer.Argument(..., help="Capture workspace (capture.toml; see `mamma-kit init`)."),
-    from_stage: Optional[str] = typer.Option(None, "--from", help="First stage to run: calibrate, sync, track, "
-                                                                  "keypoints, landmarks, match, fit or report."),
-    to_stage: Optional[str] = typer.Option(None, "--to", help="Last stage to run."),
-    force: bool = typer.Option(False, "--force", help="Recompute every selected stage even if nothing changed."),
-    json_out: bool = JsonOpt,
-    quiet: bool = QuietOpt,
-) -> None:
-    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fit -> report, each stage skipped
-    when its inputs are unchanged; an interrupted run resumes where it stopped.
-
-    Stage options come from capture.toml's [settings.<stage>] tables."""
-    from mamma_kit.pipeline import capture_to_smplx, print_summary
-
-    setup(quiet, json_out)
-    summary = capture_to_smplx(workspace, from_stage, to_stage, force=force, progress=not quiet)
-    if json_out:
-        emit_json(summary)
-    else:
-        print_summary(summary)
+# init's lists of videos: parsed from the extra arguments, since each takes several values.
+VIDEO_LIST_OPTIONS = ("--videos", "--board-videos")
 
 
 def video_groups(args: list[str]) -> dict[str, list[Path]]:
@@ -43,7 +23,7 @@ def video_groups(args: list[str]) -> dict[str, list[Path]]:
     groups: dict[str, list[Path]] = {"videos": [], "board_videos": []}
     current = None
     for a in args:
-        if a in ("--videos", "--board-videos"):
+        if a in VIDEO_LIST_OPTIONS:
             current = a[2:].replace("-", "_")
         elif a.startswith("-"):
             raise UserError(f"unknown option {a}", "see `mamma-kit init --help`")
@@ -56,7 +36,8 @@ def video_groups(args: list[str]) -> dict[str, list[Path]]:
     return groups
 
 
-@app.command("init", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@app.command("init", rich_help_panel="Your capture",
+             context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
 def init_cmd(
     ctx: typer.Context,
     workspace: Path = typer.Argument(..., help="Folder to create (or fill) as a capture workspace."),
@@ -64,7 +45,7 @@ def init_cmd(
                                                               "TOML file) the board videos show."),
     names: Optional[str] = typer.Option(None, "--names", help="Comma-separated camera names (default: file stems)."),
     copy: bool = typer.Option(False, "--copy", help="Copy the videos (default: hard links where possible)."),
-    backend: str = typer.Option("pose", "--backend", help="Mask backend written to [settings.track]: pose (BlazePose, "
+    backend: str = typer.Option("pose", "--backend", help="Mask backend written to \\[settings.track]: pose (BlazePose, "
                                                           "the best measured on real and synthetic footage), builtin "
                                                           "(background model; needs static cameras and a clean "
                                                           "plate), sam2 or gt."),
@@ -91,3 +72,28 @@ def init_cmd(
                          force=force, people=people, calibration=calibration, synced=synced)
     if json_out:
         emit_json(res)
+
+
+
+@app.command("capture-to-smplx", rich_help_panel="Your capture")
+def capture_to_smplx_cmd(
+    workspace: Path = typer.Argument(..., help="Capture workspace (capture.toml; see `mamma-kit init`)."),
+    from_stage: Optional[str] = typer.Option(None, "--from", help="First stage to run: calibrate, sync, track, "
+                                                                  "keypoints, landmarks, match, fit or report."),
+    to_stage: Optional[str] = typer.Option(None, "--to", help="Last stage to run."),
+    force: bool = typer.Option(False, "--force", help="Recompute every selected stage even if nothing changed."),
+    json_out: bool = JsonOpt,
+    quiet: bool = QuietOpt,
+) -> None:
+    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fit -> report, each stage skipped
+    when its inputs are unchanged; an interrupted run resumes where it stopped.
+
+    Stage options come from capture.toml's \\[settings.<stage>] tables."""
+    from mamma_kit.pipeline import capture_to_smplx, print_summary
+
+    setup(quiet, json_out)
+    summary = capture_to_smplx(workspace, from_stage, to_stage, force=force, progress=not quiet)
+    if json_out:
+        emit_json(summary)
+    else:
+        print_summary(summary)

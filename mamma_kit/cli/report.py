@@ -10,7 +10,7 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.cli.root import app
 
 
-@app.command("report")
+@app.command("report", rich_help_panel="Stages")
 def report_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace."),
     no_video: bool = typer.Option(False, "--no-video", help="Skip the short overlay video (stills only)."),

@@ -11,7 +11,7 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.cli.root import app
 
 
-@app.command("sync")
+@app.command("sync", rich_help_panel="Stages")
 def sync_cmd(
     targets: List[Path] = typer.Argument(..., help="A capture workspace folder, or two or more videos."),
     method: Optional[str] = typer.Option(None, "--method", help="auto | clap | ltc | tmcd | synced | timestamps | "

@@ -12,7 +12,7 @@ from mamma_kit.cli.root import app
 from mamma_kit.core import log
 
 
-@app.command()
+@app.command(rich_help_panel="Synthetic captures and training")
 def synth(
     recipe: str = typer.Argument(..., help="A recipe .toml, or the name of one in recipes/ (tiny, "
                                            "iphone-outdoor-duo, studio-16cam-solo, crowd-6, board-only)."),
@@ -23,7 +23,7 @@ def synth(
     no_board: bool = typer.Option(False, "--no-board", help="Skip the calibration board session."),
     flash: Optional[List[float]] = typer.Option(None, "--flash", help="Switch a light on at this scene time (s; "
                                                                        "repeatable) for flash sync; exposure and "
-                                                                       "rolling shutter from the recipe's [flash]."),
+                                                                       "rolling shutter from the recipe's \\[flash]."),
     crops: Optional[int] = typer.Option(None, "--crops", help="Instead of a capture, write N person crops for "
                                                                "training MammaNet (shards in --out)."),
     json_out: bool = JsonOpt,

@@ -11,7 +11,7 @@ from mamma_kit.cli.common import JsonOpt, QuietOpt, emit_json, setup
 from mamma_kit.cli.root import app
 
 
-@app.command("track")
+@app.command("track", rich_help_panel="Stages")
 def track_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace (capture.toml + videos)."),
     backend: str = typer.Option("builtin", "--backend", help="builtin (background model, no weights), pose "
@@ -24,7 +24,7 @@ def track_cmd(
                                                                           "configs/sam2.1/sam2.1_hiera_t.yaml."),
     people: Optional[int] = typer.Option(None, "--people", min=1, help="builtin, pose: how many people the capture is "
                                                                      "about; pose drops the other people (bystanders) "
-                                                                     "(default: capture.toml [capture] people)."),
+                                                                     "(default: capture.toml \\[capture] people)."),
     no_plate: bool = typer.Option(False, "--no-plate", help="builtin: background from the capture only, not from "
                                                             "the board videos."),
     chunk: int = typer.Option(64, "--chunk", min=2, help="sam2: frames per chunk (bounds memory)."),

@@ -12,13 +12,13 @@ from mamma_kit.cli.root import app
 from mamma_kit.core import log
 
 
-@app.command("train")
+@app.command("train", rich_help_panel="Synthetic captures and training")
 def train_cmd(
     config: Path = typer.Argument(..., help="Training config TOML (e.g. mamma_kit/landmarks/configs/embedded.toml)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the output folder's checkpoint."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
-    out: Optional[str] = typer.Option(None, "--out", help="Output folder (overrides [train] out)."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Total steps (overrides [train] steps)."),
+    out: Optional[str] = typer.Option(None, "--out", help="Output folder (overrides \\[train] out)."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Total steps (overrides \\[train] steps)."),
     for_steps: Optional[int] = typer.Option(None, "--for-steps", min=1, help="Stop this run after N steps with a "
                                                                              "checkpoint (continue with --resume)."),
     for_minutes: Optional[float] = typer.Option(None, "--for-minutes", help="Stop this run after M minutes with a "
