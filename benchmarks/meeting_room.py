@@ -156,12 +156,89 @@ def follow(times_g: np.ndarray, truth_g3: np.ndarray, fits: dict) -> dict:
             "instants": int(len(times_g))}
 
 
+def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame and track of the camera, which true person its BlazePose nose is on: 0, 1, or -1
+    (on neither: within a quarter of its skeleton's height of a projected MouthGT3D, else -1);
+    the track ids; and per frame and person whether the recording annotates that person in this
+    camera (posGT), i.e. whether the person is to be seen there."""
+    import cv2
+
+    from mamma_kit.core.tracks import KeypointTracks
+
+    kt = KeypointTracks.load(ws.keypoints_file(cam))
+    times_g, truth = truth_mouths()
+    t_ref = clocks[cam].to_ref(kt.frame_times)
+    c = rig[cam]
+    g = np.clip(np.searchsorted(times_g, t_ref - 0.5 / FPS), 0, len(times_g) - 1)
+    near = np.abs(times_g[g] - t_ref) < 0.5 / FPS
+    proj = np.stack([cv2.projectPoints(x, cv2.Rodrigues(c.R)[0], c.t, c.K, c.dist)[0][:, 0] for x in truth.values()])
+    label = np.full(kt.valid.shape, -1)
+    for k in range(kt.valid.shape[1]):
+        f = np.flatnonzero(kt.valid[:, k] & near)
+        nose = kt.xy[f, k, 0]
+        h = np.maximum(np.nanmax(kt.xy[f, k, :, 1], -1) - np.nanmin(kt.xy[f, k, :, 1], -1), 60.0)
+        d = np.linalg.norm(proj[:, g[f]] - nose[None], axis=-1)  # (2, n)
+        best = np.argmin(d, 0)
+        label[f, k] = np.where(d[best, np.arange(len(f))] < np.maximum(0.25 * h, 15), best, -1)
+    # to be seen: the head annotated inside the image, at an instant with ground truth
+    data = load_mat(cam)
+    W, H = c.size
+    seen = np.zeros((len(kt.frame_times), 2), bool)
+    for j, p in enumerate(("person1", "person2")):
+        pos = np.asarray(getattr(data.posGT, p), float)
+        inside = {int(f) - 1 for f, x, y in pos[:, :3] if 0 < x < W and 0 < y < H}
+        seen[:, j] = [k in inside for k in range(len(kt.frame_times))]
+    seen &= near[:, None]
+    return label, kt.track_ids, seen
+
+
+def identity_figures(ws, rig, clocks, ident) -> dict:
+    """Per camera: the person-frames the recording annotates that some assigned track follows
+    (with the right identity), and tracks or frames on no one."""
+    out = {}
+    pairs = []  # (fitted person, true person) per assigned, labelled track-frame
+    per_cam = {}
+    for cam in CAMS:
+        label, tids, seen = track_truth(ws, rig, cam, clocks)
+        from mamma_kit.core.tracks import KeypointTracks
+
+        kt = KeypointTracks.load(ws.keypoints_file(cam))
+        person = np.where(kt.valid, ident.person_frames(cam, tids, clocks[cam].to_ref(kt.frame_times)), -1)
+        per_cam[cam] = (label, person, seen)
+        m = (person >= 0) & (label >= 0)
+        pairs += list(zip(person[m], label[m]))
+    # one-to-one: each fitted person to the true person it shows most
+    from scipy.optimize import linear_sum_assignment
+
+    pids = sorted({int(p) for p, _ in pairs})
+    M = np.zeros((len(pids), 2))
+    for p, t in pairs:
+        M[pids.index(int(p)), int(t)] += 1
+    r, c = linear_sum_assignment(-M) if M.size else ([], [])
+    to_true = {pids[i]: int(j) for i, j in zip(r, c)}
+    for cam, (label, person, seen) in per_cam.items():
+        assigned = person >= 0
+        right = assigned & (label >= 0) & (np.vectorize(lambda p: to_true.get(int(p), -2))(person) == label)
+        followed = np.zeros(seen.shape, bool)
+        for k in range(label.shape[1]):
+            for j in (0, 1):
+                followed[:, j] |= right[:, k] & (label[:, k] == j)
+        out[cam] = {"annotated_person_frames": int(seen.sum()),
+                    "followed_right_pct": round(100 * float((followed & seen).sum() / max(seen.sum(), 1)), 1),
+                    "assigned_track_frames": int(assigned.sum()),
+                    "assigned_on_no_one_pct": round(100 * float((assigned & (label < 0)).sum() / max(assigned.sum(), 1)), 1),
+                    "assigned_wrong_person_pct": round(100 * float((assigned & (label >= 0) & ~right).sum()
+                                                               / max(assigned.sum(), 1)), 1)}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("/work/bench/meeting"))
     ap.add_argument("--people", type=int, default=None, help="init --people (default: not given)")
     ap.add_argument("--force", action="store_true", help="recompute every stage")
     ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--to", default="fit", help="last stage to run (match: identities only, no mouth figures)")
     a = ap.parse_args()
 
     from mamma_kit.core import log
@@ -184,7 +261,7 @@ def main() -> None:
     if not (ws_path / "capture.toml").is_file():
         log.set_quiet(True)
         init_workspace(ws_path, [REAL / "videos" / f"{c}.avi" for c in CAMS], calibration=calib, people=a.people)
-    cli("capture-to-smplx", ws_path, "--to", "fit", "-q", *(["--force"] if a.force else []))
+    cli("capture-to-smplx", ws_path, "--to", a.to, "-q", *(["--force"] if a.force else []))
     ws = Workspace(ws_path)
 
     clocks, _ = read_timing(ws.timing)
@@ -194,12 +271,22 @@ def main() -> None:
                       for c in CAMS))
     for c in CAMS:
         mt = MaskTracks.load(ws.mask_file(c))
-        frames = [int(n) for n in mt.present().sum(axis=0)]
+        frames = [int(n) for n in mt.present.sum(axis=0)]
         print(f"{c}: {len(frames)} tracks kept, frames each {frames}")
     ident = read_identities(ws.identities)
-    views = {p: ident.views_of(p) for p in ident.person_ids()}
+    views = {p: ident.views_of(p) for p in ident.person_ids}
     print(f"match: {len(views)} persons; views per person: " + "; ".join(f"{p}: {','.join(v)}" for p, v in views.items()))
 
+    idf = identity_figures(ws, rig, clocks, ident)
+    print("| camera | person-frames the recording annotates | followed with the right identity % | "
+          "assigned track-frames | on no one % | on the wrong person % |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for c, r in idf.items():
+        print(f"| {c} | {r['annotated_person_frames']} | {r['followed_right_pct']} | {r['assigned_track_frames']} | "
+              f"{r['assigned_on_no_one_pct']} | {r['assigned_wrong_person_pct']} |")
+    if a.to != "fit":
+        print(f"total {time.perf_counter() - t0:.0f} s")
+        return
     times_g, truth = truth_mouths()
     fits = fitted_mouths(ws)
     rows = {p: follow(times_g, x, fits) for p, x in truth.items()}
@@ -212,7 +299,7 @@ def main() -> None:
     print(f"total {time.perf_counter() - t0:.0f} s")
     if a.json:
         a.json.write_text(json.dumps({"calibration_px": px, "persons_matched": len(views), "views": views,
-                                      "fitted": len(fits), "truth": rows}, indent=1))
+                                      "identities": idf, "fitted": len(fits), "truth": rows}, indent=1))
 
 
 if __name__ == "__main__":

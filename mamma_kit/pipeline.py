@@ -23,7 +23,7 @@ Stage options come from capture.toml, e.g.::
     [settings.landmarks]   weights = "..."  arch = "embedded"  batch = 8  hands = "off"   (source = "gt" on synthetic data)
                            smooth_s = 0   (contact and visibility smoothing over time, s; default 0.1)
                            contact = "off"   (the body network's own contact head; default "auto": the single-query network's)
-    [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25
+    [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25  window = 2.0
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
                            hand_points = false   (the hand model's points in the fit; default true)
     [settings.report]      video = true
@@ -51,7 +51,7 @@ KNOWN = {
     "keypoints": {"blank", "threads", "pictures", "resplit", "hands"},
     "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads", "hands",
                   "smooth_s", "contact"},
-    "match": {"lam", "max_distance", "min_affinity", "plots"},
+    "match": {"lam", "max_distance", "min_affinity", "window", "plots"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model", "hand_points"},
     "report": {"video"},
 }
@@ -184,8 +184,8 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         from mamma_kit.matching.stage import run_match
 
         res = run_match(ws, lam=float(opts.get("lam", 0.05)), max_distance=float(opts.get("max_distance", 0.12)),
-                        min_affinity=float(opts.get("min_affinity", 0.25)), plots=bool(opts.get("plots", True)),
-                        force=force)
+                        min_affinity=float(opts.get("min_affinity", 0.25)), window_s=float(opts.get("window", 2.0)),
+                        plots=bool(opts.get("plots", True)), force=force)
     elif stage == "fit":
         from mamma_kit.fitting.stage import fit_workspace
         from mamma_kit.fitting.stages import FitConfig

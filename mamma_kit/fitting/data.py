@@ -114,21 +114,24 @@ def _read_clocks(ws: Workspace, names: list[str]) -> tuple[dict[str, ClockModel]
     return {n: ClockModel() for n in names}, names[0], notes
 
 
-def _person_map(ws: Workspace, tracks: dict[str, LandmarkTracks]) -> tuple[dict[str, dict[int, int]], list[str]]:
-    """camera -> {track id: person id}, from identities.json when there is one."""
-    notes = []
-    if ws.identities.is_file():
-        try:
-            from mamma_kit.core.identities import read_identities
-        except ImportError:  # the matching stage has not landed in this install
-            read_identities = None
-        if read_identities is not None:
-            ident = read_identities(ws.identities)
-            out = {c: {int(t): int(p) for t, p in ident.assignments.get(c, {}).items()} for c in tracks}
-            return out, notes
-    notes.append("no identities.json: each view's track id is taken as the person id")
-    log.info("fit: " + notes[-1] + " (true for ground-truth landmarks; run `mamma-kit match` otherwise)")
-    return {c: {int(t): int(t) for t in lt.track_ids} for c, lt in tracks.items()}, notes
+class PersonMap:
+    """Which person each view's track shows at each of its frames: identities.json (a track may
+    show different people in different stretches), else each track id is its person id."""
+
+    def __init__(self, ws: Workspace):
+        from mamma_kit.core.identities import read_identities
+
+        self.ident = read_identities(ws.identities) if ws.identities.is_file() else None
+        self.notes: list[str] = []
+        if self.ident is None:
+            self.notes.append("no identities.json: each view's track id is taken as the person id")
+            log.info("fit: " + self.notes[-1] + " (true for ground-truth landmarks; run `mamma-kit match` otherwise)")
+
+    def frames(self, camera: str, track_ids: np.ndarray, times_ref: np.ndarray) -> np.ndarray:
+        """(T, K) person id of each track at each frame, -1 for none."""
+        if self.ident is None:
+            return np.broadcast_to(np.asarray(track_ids, np.int64), (len(times_ref), len(track_ids))).copy()
+        return self.ident.person_frames(camera, track_ids, times_ref)
 
 
 def _bracket(tr: np.ndarray, out_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -165,21 +168,21 @@ def _mixer(f0: np.ndarray, f1: np.ndarray, w1: np.ndarray, k: int):
     return mix
 
 
-def sampled_tracks(track_ids: np.ndarray, valid_tk: np.ndarray, cam_pmap: dict, pindex: dict, i0, i1, a,
-                   taken_pt: np.ndarray):
-    """For each of a view's tracks matched to a fitted person: (pi, take (T,), mix), where
-    ``mix(arr)`` samples that track's column of a (frames, tracks, ...) array at the output
-    frames ``take`` (see _sampling); a person's first track wins a frame (taken_pt (P, T))."""
-    for k, tid in enumerate(track_ids):
-        p = cam_pmap.get(int(tid))
-        if p is None or p not in pindex:  # unmatched, or a person left out (seen in one view)
-            continue
-        pi = pindex[p]
-        smp = _sampling(valid_tk[:, k], i0, i1, a, taken_pt[pi])
-        if smp is None:
-            continue
-        take, f0, f1, w1 = smp
-        yield pi, take, _mixer(f0, f1, w1, k)
+def sampled_tracks(valid_tk: np.ndarray, person_tk: np.ndarray, pindex: dict, i0, i1, a, taken_pt: np.ndarray):
+    """For each stretch of a view's tracks showing a fitted person (person_tk (T, K), -1 none):
+    (pi, take (T,), mix), where ``mix(arr)`` samples that track's column of a (frames, tracks, ...)
+    array at the output frames ``take`` (see _sampling); a person's first track wins a frame
+    (taken_pt (P, T))."""
+    for k in range(person_tk.shape[1]):
+        for p in np.unique(person_tk[:, k][person_tk[:, k] >= 0]):
+            if int(p) not in pindex:  # a person left out (seen in one view)
+                continue
+            pi = pindex[int(p)]
+            smp = _sampling(valid_tk[:, k] & (person_tk[:, k] == p), i0, i1, a, taken_pt[pi])
+            if smp is None:
+                continue
+            take, f0, f1, w1 = smp
+            yield pi, take, _mixer(f0, f1, w1, k)
 
 
 def point_box_size(xy_tk_n2: np.ndarray) -> np.ndarray:
@@ -190,7 +193,7 @@ def point_box_size(xy_tk_n2: np.ndarray) -> np.ndarray:
     return np.nan_to_num(ext.max(-1), nan=0.0)
 
 
-def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.ndarray, pmap: dict,
+def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.ndarray, pmap: PersonMap,
                    pindex: dict, image_sizes: dict) -> tuple[np.ndarray | None, ...]:
     """kp_xy, kp_vis, kp_size, hand_xy, hand_vis (module doc) and the files read; Nones without
     any file."""
@@ -223,7 +226,8 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
             continue
         i0, i1, a = _bracket(tr, out_t)
         size_tk = point_box_size(kt.xy)
-        for pi, take, mix in sampled_tracks(kt.track_ids, kt.valid, pmap[n], pindex, i0, i1, a, taken[ci]):
+        person_tk = pmap.frames(n, kt.track_ids, tr)
+        for pi, take, mix in sampled_tracks(kt.valid, person_tk, pindex, i0, i1, a, taken[ci]):
             xy_m = mix(kt.xy)
             bad = ~np.isfinite(xy_m).all(-1)
             vv = np.clip(np.nan_to_num(mix(kt.visibility) * mix(kt.presence)), 0, 1)
@@ -287,12 +291,14 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
             raise UserError(f"landmarks/{n}.npz is for {lt.image_size[0]}x{lt.image_size[1]} images, "
                             f"calibration.toml says {rig[n].size[0]}x{rig[n].size[1]}",
                             "calibrate and run landmarks on the same videos")
-    pmap, n2 = _person_map(ws, tracks)
-    notes += n2
+    pmap = PersonMap(ws)
+    notes += pmap.notes
+    ref_times = {n: clocks[n].to_ref(tracks[n].frame_times) for n in names}
+    person_of = {n: pmap.frames(n, tracks[n].track_ids, ref_times[n]) for n in names}
     views_of: dict[int, set] = {}
-    for cam, m in pmap.items():
-        for p in m.values():
-            views_of.setdefault(p, set()).add(cam)
+    for cam, person_tk in person_of.items():
+        for p in np.unique(person_tk[(person_tk >= 0) & tracks[cam].valid]):
+            views_of.setdefault(int(p), set()).add(cam)
     # one view leaves a body's depth to the shape prior alone: not a multi-view fit
     single = sorted(p for p, v in views_of.items() if len(v) < 2) if len(names) > 1 else []
     if single:
@@ -304,7 +310,6 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
                         "or the calibration may be off")
 
     frame_camera = reference if reference in names else names[0]
-    ref_times = {n: clocks[n].to_ref(tracks[n].frame_times) for n in names}
     lo = max(float(t[0]) for t in ref_times.values() if len(t))
     hi = min(float(t[-1]) for t in ref_times.values() if len(t))
     ft = ref_times[frame_camera]
@@ -329,7 +334,7 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         if len(tr) == 0:
             continue
         i0, i1, a = _bracket(tr, out_t)
-        for pi, take, mix in sampled_tracks(lt.track_ids, lt.valid, pmap[n], pindex, i0, i1, a, present[ci]):
+        for pi, take, mix in sampled_tracks(lt.valid, person_of[n], pindex, i0, i1, a, present[ci]):
             xy_m = mix(lt.xy)
             bad = ~np.isfinite(xy_m).all(-1)
             xy[ci, pi, take] = np.nan_to_num(xy_m)

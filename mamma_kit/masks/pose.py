@@ -7,8 +7,9 @@ tracks. The landmark model then gives every followed person 33 points and a segm
 ROI. A pixel the segmentations of two people both claim goes to the person whose skeleton is
 nearer, and no person's mask reaches farther from its skeleton than a share of its size (the ROI
 also holds other people and bystanders). After the video, tracks that do not overlap in time and
-meet where one ends and the next starts are joined, and ``people`` keeps the N tracks the capture
-is about: large, long-lived and moving, not a bystander who stands still at the edge.
+meet where one ends and the next starts are joined, and ``people`` (a hint) keeps at most N tracks
+at once, those the capture is most about: large, long-lived and moving, not a bystander who
+stands still at the edge. Which tracks are the capture's people is decided across views (match).
 """
 
 from __future__ import annotations
@@ -77,6 +78,8 @@ def limb_distance(xy_a: np.ndarray, xy_b: np.ndarray) -> float:
 # fragments are joined across a gap of at most this many frames where the boxes meet
 JOIN_GAP = 15
 JOIN_SHARE = 0.5
+# tracks shorter than this are a glimpse or a false detection
+MIN_TRACK_S = 0.2
 SEG_THRESHOLD = 0.5
 
 
@@ -378,21 +381,36 @@ def importance(mt: MaskTracks, cols: list[int]) -> float:
 
 
 def select_people(mt: MaskTracks, people: int | None) -> tuple[MaskTracks, list[dict]]:
-    """Join fragments; with ``people``, keep that many (joined) tracks by importance. Track ids are
-    renumbered 0..K-1 by first appearance."""
+    """Join fragments and drop the shortest (shorter than MIN_TRACK_S: a glimpse or a false
+    detection). ``people`` is a hint, not a count of tracks: a view holds at most that many at
+    once, the most important (importance) first, so a person whose track broke keeps every piece
+    and a bystander beside the capture's people is left out only while they are all in view.
+    Which tracks are the capture's people is decided across the views (`mamma-kit match`). Track
+    ids are renumbered 0..K-1 by first appearance."""
     groups = join_fragments(mt)
     scored = sorted(((importance(mt, g), g) for g in groups), key=lambda x: -x[0])
-    if people:
-        scored = scored[:people]
     T = len(mt.frame_times)
+    fps = 1.0 / float(np.median(np.diff(mt.frame_times))) if T > 1 else 30.0
+    min_frames = max(3, min(int(round(MIN_TRACK_S * fps)), T // 4))  # short clips: a quarter of them
+    load = np.zeros(T, np.int64)  # tracks kept at each frame
+    kept = []
+    for score, g in scored:
+        frames = mt.present[:, g].any(1)
+        if people:
+            frames &= load < people
+        if frames.sum() < min_frames:
+            continue
+        load += frames
+        kept.append((score, g, frames))
     W, H = mt.image_size
-    first = sorted(scored, key=lambda x: min(int(np.flatnonzero(mt.present[:, k])[0]) for k in x[1]))
+    first = sorted(kept, key=lambda x: int(np.flatnonzero(x[2])[0]))
     builder = MaskTrackBuilder(mt.camera, (W, H), mt.frame_times)
     chosen = []
-    for new_id, (score, g) in enumerate(first):
-        for t in range(T):
+    for new_id, (score, g, frames) in enumerate(first):
+        for t in np.flatnonzero(frames):
             for k in g:
                 if mt.present[t, k]:
-                    builder.add(t, new_id, mt.mask(t, k), float(mt.scores[t, k]))
-        chosen.append({"track": new_id, "from": [int(mt.track_ids[k]) for k in g], "importance": round(score, 1)})
+                    builder.add(int(t), new_id, mt.mask(int(t), k), float(mt.scores[t, k]))
+        chosen.append({"track": new_id, "from": [int(mt.track_ids[k]) for k in g], "importance": round(score, 1),
+                       "frames": int(frames.sum())})
     return builder.build(mt.producer), chosen

@@ -196,8 +196,11 @@ def camera_times(ws: Workspace, cams: list[str], lts: dict[str, LandmarkTracks],
     return {c: np.arange(len(lts[c].frame_times), dtype=np.float64) for c in cams}, "frame index"
 
 
-def match_workspace(ws: Workspace, cameras: list[str] | None = None, calibration: Path | None = None,
-                    timing: Path | None = None, settings: MatchSettings | None = None) -> Identities:
+def workspace_views(ws: Workspace, cameras: list[str] | None = None, calibration: Path | None = None,
+                    timing: Path | None = None, settings: MatchSettings | None = None) \
+        -> tuple[list[ViewTracks], list[ViewTracks | None] | None, str]:
+    """The workspace's views ready for matching: landmark tracks, keypoint tracks (None where a
+    camera has none, or None for all) and how frames are paired in time."""
     calib = calibration or ws.calibration
     if not Path(calib).is_file():
         raise UserError(f"no calibration at {calib}", "run `mamma-kit calibrate WORKSPACE` (or pass --calibration)")
@@ -223,10 +226,7 @@ def match_workspace(ws: Workspace, cameras: list[str] | None = None, calibration
     views = [ViewTracks.from_landmarks(lts[c], _camera_for(rig[c], lts[c].image_size), times[c], s.vis_threshold)
              for c in cameras]
     kp_views = keypoint_views(ws, cameras, lts, rig, times, s) if s.use_keypoints else None
-    ident = match_views(views, settings, kp_views)
-    ident.diagnostics["time_pairing"] = how
-    ident.diagnostics["keypoints"] = [c for c, v in zip(cameras, kp_views or []) if v is not None]
-    return ident
+    return views, kp_views, how
 
 
 def keypoint_views(ws: Workspace, cameras: list[str], lts: dict[str, LandmarkTracks], rig, times,

@@ -15,11 +15,14 @@ from mamma_kit.core.manifest import StageManifest, producer
 
 def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path | None = None,
               timing: Path | None = None, lam: float = 0.05, max_distance: float = 0.12, min_affinity: float = 0.25,
-              plots: bool = True, force: bool = False) -> dict:
-    """Cross-view identities of every track (see matching.match)."""
+              people: int | None = None, window_s: float = 2.0, plots: bool = True, force: bool = False) -> dict:
+    """Cross-view identities of every track (see matching.match and matching.windows). ``people``:
+    how many people the capture is about (default: capture.toml's [capture] people; none: every
+    person two or more cameras see)."""
     from mamma_kit.core.identities import write_identities
     from mamma_kit.core.workspace import select_cameras
-    from mamma_kit.matching.match import MatchSettings, match_workspace
+    from mamma_kit.matching.match import MatchSettings, workspace_views
+    from mamma_kit.matching.windows import WindowSettings, match_take
 
     names = ws.load_capture().camera_names if ws.capture_toml.is_file() else \
         sorted(p.stem for p in ws.landmarks_dir.glob("*.npz"))
@@ -31,10 +34,13 @@ def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path |
         raise UserError(f"timing file not found: {timing}", "run `mamma-kit sync WORKSPACE` or fix --timing")
     tpath = Path(timing) if timing is not None else (ws.timing if ws.timing.is_file() else None)
     settings = MatchSettings(lam=lam, max_distance=max_distance, min_affinity=min_affinity)
+    if people is None and ws.capture_toml.is_file():
+        people = ws.load_capture().people
+    over_time = WindowSettings(window_s=window_s, people=people)
     inputs = [ws.landmarks_file(c) for c in cams] + [calib] + ([tpath] if tpath else []) + \
         [ws.keypoints_file(c) for c in cams if ws.keypoints_file(c).is_file()]
     manifest = StageManifest(ws.cache_dir, "match", ws.root)
-    key = {"cameras": cams, "settings": settings.__dict__, "calibration": ws.relative(calib),
+    key = {"cameras": cams, "settings": settings.__dict__, "over_time": over_time.__dict__, "calibration": ws.relative(calib),
            "timing": ws.relative(tpath) if tpath else None, "plots": plots}
     state = manifest.check(inputs, key)
     if state.fresh and not force and ws.identities.is_file():
@@ -42,7 +48,10 @@ def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path |
         return {"stage": "match", "skipped": True, "reason": state.reason, **manifest.load().get("summary", {})}
     log.info(f"match: {state.reason}: running")
     t0 = time.perf_counter()
-    ident = match_workspace(ws, cams, calib, tpath, settings)
+    views, kp_views, how = workspace_views(ws, cams, calib, tpath, settings)
+    ident = match_take(views, kp_views, settings, over_time)
+    ident.diagnostics["time_pairing"] = how
+    ident.diagnostics["keypoints"] = [v.name for v in (kp_views or []) if v is not None]
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
     ident.producer = producer("match " + " ".join(f"{k}={v}" for k, v in settings.__dict__.items()
                                                   if k in ("lam", "max_distance", "min_affinity")), hashes)
@@ -63,6 +72,8 @@ def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path |
     for p in ident.persons():
         log.info(f"person {p['id']}: {p['views']} view(s), tracks "
                  + ", ".join(f"{t['camera']}:{t['track']}" for t in p["tracks"]))
+    for d in ident.diagnostics.get("set_aside", []):
+        log.info(f"set aside: tracks {', '.join(d['tracks'])}: {d['reason']}")
     log.info(f"identities.json written ({len(ident.person_ids)} persons, {len(ident.rejected)} rejected "
              f"matches) in {secs:.1f} s")
     return {"stage": "match", "skipped": False, "reason": state.reason, **summary, "seconds": round(secs, 2)}

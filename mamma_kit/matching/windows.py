@@ -1,0 +1,448 @@
+"""Identities over a long take: match per time window, chain the windows, keep the capture's people.
+
+A per-view track is not one person for sure: a tracker can jump from one person to another where
+they cross, and a person who leaves a view comes back as a new track. Matching whole tracks ties
+a jump's two people together. So the take is cut into windows (``window_s`` on the reference
+clock); in each, the tracks present are matched across views as in match.match_views (epipolar
+tracklet affinities, cycle-consistent grouping), giving window persons. Window persons are then
+chained over time: consecutive windows' persons that share tracks (the same track of the same
+view) are the same person, decided by a Hungarian assignment on the frames they share, so a
+track that changes person changes chain where the other views say so. A window person that
+shares tracks with a chain but lost the assignment (a view whose track the window's grouping
+left alone) joins that chain when no view of it clashes.
+
+Chains are the persons. A person of the capture is seen by two or more views at once for at
+least ``min_multiview_s`` (a track seen by one camera only has no depth and is no one the fit
+can place); with ``people`` = N the N best supported are kept (the frames in which two or more
+views see them). Everything else is listed with its reason. Per view, a track whose frames all
+fall in one person is assigned whole; one that changes person gets segments (core.identities).
+
+Cost: linear in the take's length (each window is matched on its own frames).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mamma_kit.core.identities import Identities
+from mamma_kit.matching.pairs import ViewTracks
+
+
+@dataclass
+class WindowSettings:
+    window_s: float = 2.0
+    min_multiview_s: float = 0.5
+    max_gap_windows: int = 2  # a chain may resume after this many windows without a shared track
+    people: int | None = None
+    link_gap_s: float = 8.0  # chains this far apart in time may be one person (leaving all views a while)
+    link_speed: float = 2.5  # m/s: ... if the gap between their ends is walkable at this speed
+    link_margin_m: float = 0.6
+
+
+@dataclass
+class _Chain:
+    windows: dict[int, dict[tuple[str, int], int]] = field(default_factory=dict)  # window -> {(cam, track): frames}
+    multiview_frames: int = 0
+
+    @property
+    def last(self) -> int:
+        return max(self.windows)
+
+    def views(self) -> set[str]:
+        return {c for m in self.windows.values() for c, _ in m}
+
+    def tracks(self) -> dict[tuple[str, int], set[int]]:
+        """Each (camera, track) of the chain and the windows it holds it in."""
+        out: dict[tuple[str, int], set[int]] = {}
+        for w, m in self.windows.items():
+            for k in m:
+                out.setdefault(k, set()).add(w)
+        return out
+
+
+def slice_view(v: ViewTracks | None, lo: float, hi: float) -> ViewTracks | None:
+    """The view's frames with lo <= t < hi and the tracks present in them (None if none)."""
+    if v is None:
+        return None
+    f = np.flatnonzero((v.times_ref >= lo) & (v.times_ref < hi))
+    if not len(f):
+        return None
+    keep = np.flatnonzero(v.valid_tk[f].any(0))
+    if not len(keep):
+        return None
+    return ViewTracks(v.name, v.camera, v.times_ref[f], v.period, v.track_ids[keep],
+                      v.xy_tkl2[f][:, keep], v.vis_tkl[f][:, keep], v.valid_tk[f][:, keep], v.height_tk[f][:, keep])
+
+
+def window_persons(ident: Identities, views: list[ViewTracks]) -> list[dict[tuple[str, int], int]]:
+    """The window's persons: per person {(camera, track): frames present in the window}."""
+    frames = {(v.name, int(t)): int(v.valid_tk[:, k].sum()) for v in views for k, t in enumerate(v.track_ids)}
+    out: dict[int, dict] = {}
+    for c, m in ident.assignments.items():
+        for t, p in m.items():
+            out.setdefault(p, {})[(c, int(t))] = frames.get((c, int(t)), 0)
+    return [m for _, m in sorted(out.items())]
+
+
+def multiview_frames(members: dict[tuple[str, int], int]) -> int:
+    """Frames in which two or more views see a window person: its second-best view's frames."""
+    per_view: dict[str, int] = {}
+    for (c, _), n in members.items():
+        per_view[c] = per_view.get(c, 0) + n
+    counts = sorted(per_view.values(), reverse=True)
+    return counts[1] if len(counts) > 1 else 0
+
+
+def chain_windows(per_window: list[list[dict]], max_gap: int, coexist=lambda *a: True) -> list[_Chain]:
+    """Chains of window persons sharing tracks (see module doc); ``coexist`` as in compatible."""
+    chains: list[_Chain] = []
+    for w, persons in enumerate(per_window):
+        live = [i for i, ch in enumerate(chains) if w - ch.last <= max_gap + 1]
+        score = np.zeros((len(live), len(persons)))
+        for a, i in enumerate(live):
+            last = chains[i].windows[chains[i].last]
+            for b, m in enumerate(persons):
+                score[a, b] = sum(min(n, last[k]) for k, n in m.items() if k in last)
+        taken: dict[int, int] = {}
+        if score.size:
+            r, c = linear_sum_assignment(-score)
+            taken = {int(b): live[int(a)] for a, b in zip(r, c) if score[a, b] > 0}
+        for b, m in enumerate(persons):
+            if b in taken:
+                continue
+            # a window person that shares tracks with one chain only and clashes with none of its views
+            sharing = [live[a] for a in range(len(live)) if score[a, b] > 0]
+            if len(sharing) == 1:
+                ch = chains[sharing[0]]
+                now = ch.windows.get(w, {})
+                if not ({c for c, _ in now} & {c for c, _ in m}):
+                    ch.windows[w] = {**now, **m}
+                    continue
+            chains.append(_Chain({w: dict(m)}))
+        for b, i in taken.items():
+            now = chains[i].windows.get(w, {})
+            chains[i].windows[w] = {**now, **persons[b]}
+            # the other chains this window person shares tracks with are the same person, when
+            # none of their tracks co-exists in a view with one of this chain's
+            for a in range(len(live)):
+                j = live[a]
+                if j != i and j not in taken.values() and score[a, b] > 0 and chains[j].windows \
+                        and compatible(chains[i], chains[j], coexist):
+                    for wj, m in chains[j].windows.items():
+                        chains[i].windows[wj] = {**chains[i].windows.get(wj, {}), **m}
+                    chains[j].windows = {}
+        chains = [ch for ch in chains if ch.windows]
+    for ch in chains:
+        ch.multiview_frames = sum(multiview_frames(m) for m in ch.windows.values())
+    return chains
+
+
+def compatible(a: _Chain, b: _Chain, coexist) -> bool:
+    """No view holds a track of ``a`` and another of ``b`` that co-exist in the windows each
+    chain holds it (``coexist(track_a, windows_a, track_b, windows_b)``)."""
+    ta, tb = a.tracks(), b.tracks()
+    return not any(ka[0] == kb[0] and ka != kb and coexist(ka, wa, kb, wb)
+                   for ka, wa in ta.items() for kb, wb in tb.items())
+
+
+def trim_weak_ends(chains: list[_Chain]) -> list[_Chain]:
+    """A chain's first and last windows seen by one view only are split off as chains of their
+    own: a lone view's track at a chain's end is where a tracker jumps to someone else, and
+    across a gap only the multi-view part says where the person is."""
+    out = []
+    for ch in chains:
+        ws = sorted(ch.windows)
+        strong = [w for w in ws if len({c for c, _ in ch.windows[w]}) >= 2]
+        if not strong:
+            out.append(ch)
+            continue
+        lo, hi = strong[0], strong[-1]
+        out.append(_Chain({w: m for w, m in ch.windows.items() if lo <= w <= hi}))
+        for part in ([w for w in ws if w < lo], [w for w in ws if w > hi]):
+            if part:
+                out.append(_Chain({w: ch.windows[w] for w in part}))
+    for ch in out:
+        ch.multiview_frames = sum(multiview_frames(m) for m in ch.windows.values())
+    return out
+
+
+def link_chains(chains: list[_Chain], ends, coexist, s: WindowSettings) -> list[_Chain]:
+    """Chains that follow each other in time where a person could walk from one's end to the
+    other's start (``ends(chain)`` -> ((t, X) first, (t, X) last) of its multi-view frames, or
+    None), with no view conflict, are one person (nearest pairs first)."""
+    while True:
+        best = None
+        info = [ends(ch) for ch in chains]
+        for i, a in enumerate(chains):
+            for j, b in enumerate(chains):
+                if i == j or info[i] is None or info[j] is None:
+                    continue
+                (_, _), (t_a, X_a) = info[i]
+                (t_b, X_b), _ = info[j]
+                gap = t_b - t_a
+                if not 0 < gap <= s.link_gap_s or max(a.windows) > min(b.windows):
+                    continue
+                d = float(np.linalg.norm(X_b - X_a))
+                if d > s.link_margin_m + s.link_speed * gap or not compatible(a, b, coexist):
+                    continue
+                if best is None or d < best[0]:
+                    best = (d, i, j)
+        if best is None:
+            return chains
+        _, i, j = best
+        for w, m in chains[j].windows.items():
+            chains[i].windows[w] = {**chains[i].windows.get(w, {}), **m}
+        chains[i].multiview_frames += chains[j].multiview_frames
+        del chains[j]
+
+
+class TrackGeometry:
+    """Per (camera, track): its frames' reference times, presence and the centroid of its
+    visible points (undistorted px), to tell whether two tracks co-exist and where a chain is."""
+
+    def __init__(self, views: list[ViewTracks], edges: np.ndarray):
+        self.views = {v.name: v for v in views}
+        self.window_of = {v.name: np.searchsorted(edges, v.times_ref, side="right") - 1 for v in views}
+        self.col = {(v.name, int(t)): k for v in views for k, t in enumerate(v.track_ids)}
+        self.centroid = {}
+        for v in views:
+            with np.errstate(invalid="ignore"):
+                xy = np.where(v.vis_tkl[..., None], v.xy_tkl2, np.nan)
+                n = np.isfinite(xy[..., 0]).sum(-1)
+                c = np.nansum(np.nan_to_num(xy), -2) / np.maximum(n, 1)[..., None]
+            self.centroid[v.name] = np.where((n > 0)[..., None], c, np.nan)
+
+    def coexist(self, a: tuple[str, int], wins_a, b: tuple[str, int], wins_b, handover_s: float = 1.0) -> bool:
+        """Two tracks of one view, each in the given windows, show two people: they share more
+        frames there than a tracker's hand-over takes (a new track starting on a person before
+        the old one, drifting off, lets go)."""
+        v, win = self.views[a[0]], self.window_of[a[0]]
+        pa = v.valid_tk[:, self.col[a]] & np.isin(win, list(wins_a))
+        pb = v.valid_tk[:, self.col[b]] & np.isin(win, list(wins_b))
+        return int(np.count_nonzero(pa & pb)) > max(2, handover_s / v.period)
+
+    def ends(self, ch: _Chain, n: int = 5):
+        """((t, X) of the chain's first multi-view frames, (t, X) of its last), X the median of
+        ``n`` frames' triangulated centroids; None without two views at once."""
+        pts = []
+        for w in sorted(ch.windows):
+            members = list(ch.windows[w])
+            if len({c for c, _ in members}) < 2:
+                continue
+            pts += self._triangulated(members)
+        if not pts:
+            return None
+        pts.sort(key=lambda p: p[0])
+        first, last = pts[:n], pts[-n:]
+        return ((first[0][0], np.median([p[1] for p in first], 0)), (last[-1][0], np.median([p[1] for p in last], 0)))
+
+    def _triangulated(self, members) -> list[tuple[float, np.ndarray]]:
+        by_view: dict[str, list] = {}
+        for key in members:
+            by_view.setdefault(key[0], []).append(key)
+        main = max(by_view, key=lambda c: sum(self.views[c].valid_tk[:, self.col[k]].sum() for k in by_view[c]))
+        vm = self.views[main]
+        out = []
+        for key in by_view[main]:
+            k = self.col[key]
+            for f in np.flatnonzero(vm.valid_tk[:, k]):
+                t = vm.times_ref[f]
+                rays = [self._ray(main, k, f)]
+                for c, keys in by_view.items():
+                    if c == main:
+                        continue
+                    v = self.views[c]
+                    g = int(np.argmin(np.abs(v.times_ref - t)))
+                    if abs(v.times_ref[g] - t) > 0.5 * v.period + 1e-9:
+                        continue
+                    for kk in keys:
+                        if v.valid_tk[g, self.col[kk]]:
+                            rays.append(self._ray(c, self.col[kk], g))
+                rays = [r for r in rays if r is not None]
+                if len(rays) >= 2:
+                    out.append((float(t), _closest_point(rays)))
+        return out
+
+    def _ray(self, cam: str, k: int, f: int):
+        c = self.centroid[cam][f, k]
+        if not np.isfinite(c).all():
+            return None
+        camera = self.views[cam].camera
+        d = camera.R.T @ np.linalg.solve(camera.K, np.r_[c, 1.0])
+        return camera.center, d / np.linalg.norm(d)
+
+
+def _closest_point(rays) -> np.ndarray:
+    """The point nearest to all rays (origin, unit direction) in the least-squares sense."""
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for o, d in rays:
+        M = np.eye(3) - np.outer(d, d)
+        A += M
+        b += M @ o
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def select_chains(chains: list[_Chain], period: float, s: WindowSettings) -> tuple[list[_Chain], list[dict]]:
+    """The capture's persons (best supported first) and why the other chains are not."""
+    ranked = sorted(chains, key=lambda ch: (-ch.multiview_frames, -len(ch.views()), min(ch.windows)))
+    need = max(1, int(round(s.min_multiview_s / max(period, 1e-6))))
+    kept, dropped = [], []
+    for ch in ranked:
+        views = sorted(ch.views())
+        why = None
+        if len(views) < 2:
+            why = f"seen by {views[0] if views else 'no'} camera only"
+        elif ch.multiview_frames < need:
+            why = f"seen by two or more cameras at once in {ch.multiview_frames} frames only (< {s.min_multiview_s} s)"
+        elif s.people and len(kept) >= s.people:
+            why = f"not one of the {s.people} people best seen (--people {s.people})"
+        if why is None:
+            kept.append(ch)
+        else:
+            dropped.append({"views": views, "multiview_frames": ch.multiview_frames, "reason": why,
+                            "tracks": sorted({f"{c}:{t}" for m in ch.windows.values() for c, t in m})})
+    return kept, dropped
+
+
+def identities_from_chains(kept: list[_Chain], views: list[ViewTracks], edges: list[float]) -> \
+        tuple[dict[str, dict[int, int]], dict[str, list], dict[tuple[str, int], int]]:
+    """assignments, segments and frames per track from the kept chains (person id = rank)."""
+    by_name = {v.name: v for v in views}
+    owner: dict[tuple[str, int], dict[int, int]] = {}  # (cam, track) -> {window: person}
+    for pid, ch in enumerate(kept):
+        for w, m in ch.windows.items():
+            for key in m:
+                owner.setdefault(key, {})[w] = pid
+    assignments: dict[str, dict[int, int]] = {v.name: {} for v in views}
+    segments: dict[str, list] = {}
+    frames: dict[tuple[str, int], int] = {}
+    for (cam, tid), wins in owner.items():
+        v = by_name[cam]
+        k = int(np.flatnonzero(v.track_ids == tid)[0])
+        t = v.times_ref[v.valid_tk[:, k]]
+        win_of = np.searchsorted(edges, t, side="right") - 1
+        person = np.array([wins.get(int(w), -1) for w in win_of])
+        frames[(cam, tid)] = int((person >= 0).sum())
+        ids, counts = np.unique(person[person >= 0], return_counts=True)
+        if not len(ids):
+            continue
+        assignments[cam][tid] = int(ids[np.argmax(counts)])
+        if len(ids) == 1 and (person >= 0).all():
+            continue
+        # runs of one person -> segments from its first to its last frame
+        cut = np.flatnonzero(np.diff(person) != 0) + 1
+        for run in np.split(np.arange(len(person)), cut):
+            if person[run[0]] >= 0:
+                segments.setdefault(cam, []).append((int(tid), float(t[run[0]]), float(t[run[-1]]), int(person[run[0]])))
+    return assignments, segments, frames
+
+
+def merge_pairs(window_pairs: list[dict]) -> dict:
+    """The windows' pair records ("camA|camB" -> rows, cols, affinity, distance, ...) as one
+    record per camera pair over the whole take: shared observations summed, affinity and
+    distances averaged with them as weights."""
+    acc: dict[str, dict] = {}
+    for pairs in window_pairs:
+        for key, rec in pairs.items():
+            a = acc.setdefault(key, {"cells": {}, "source": {}})
+            a["source"][rec["source"]] = a["source"].get(rec["source"], 0) + 1
+            for i, ta in enumerate(rec["rows"]):
+                for j, tb in enumerate(rec["cols"]):
+                    n = rec["shared_landmarks"][i][j]
+                    c = a["cells"].setdefault((int(ta), int(tb)), [0, 0, 0.0, 0.0, 0.0])
+                    c[0] += n
+                    c[1] += rec["shared_frames"][i][j]
+                    for slot, name in ((2, "affinity"), (3, "distance"), (4, "distance_px")):
+                        v = rec[name][i][j]
+                        if v is not None and n:
+                            c[slot] += v * n
+    out = {}
+    for key, a in acc.items():
+        rows = sorted({ta for ta, _ in a["cells"]})
+        cols = sorted({tb for _, tb in a["cells"]})
+
+        def grid(slot, digits):
+            g = []
+            for ta in rows:
+                row = []
+                for tb in cols:
+                    c = a["cells"].get((ta, tb))
+                    row.append(None if not c or not c[0] else round(c[slot] / c[0], digits))
+                g.append(row)
+            return g
+
+        out[key] = {"rows": rows, "cols": cols, "affinity": grid(2, 4), "distance": grid(3, 4),
+                    "distance_px": grid(4, 2),
+                    "shared_landmarks": [[a["cells"].get((ta, tb), [0])[0] for tb in cols] for ta in rows],
+                    "shared_frames": [[a["cells"].get((ta, tb), [0, 0])[1] for tb in cols] for ta in rows],
+                    "source": max(a["source"], key=a["source"].get)}
+    return out
+
+
+def match_take(views: list[ViewTracks], kp_views: list[ViewTracks | None] | None, settings=None,
+               ws: WindowSettings | None = None) -> Identities:
+    """Identities of the whole take (see module doc)."""
+    from dataclasses import asdict
+
+    from mamma_kit.matching.match import MatchSettings, match_views
+
+    s = settings or MatchSettings()
+    w_s = ws or WindowSettings()
+    names = [v.name for v in views]
+    t_all = np.concatenate([v.times_ref[v.valid_tk.any(1)] for v in views] + [np.zeros(0)])
+    t_lo = float(t_all.min()) if len(t_all) else 0.0
+    t_hi = float(t_all.max()) if len(t_all) else 0.0
+    n_win = max(1, int(np.ceil((t_hi - t_lo) / w_s.window_s + 1e-9)))
+    edges = t_lo + w_s.window_s * np.arange(n_win + 1)
+    edges[-1] = np.inf
+    per_window, window_pairs, rejected = [], [], []
+    for w in range(n_win):
+        vs = [slice_view(v, edges[w], edges[w + 1]) for v in views]
+        ks = [slice_view(k, edges[w], edges[w + 1]) for k in kp_views] if kp_views is not None else None
+        here = [i for i, v in enumerate(vs) if v is not None]
+        if len(here) >= 2:
+            kw = [ks[i] for i in here] if ks is not None else None
+            if kw is not None and not all(k is not None and np.array_equal(k.track_ids, vs[i].track_ids)
+                                          for k, i in zip(kw, here)):
+                kw = [k if k is not None and np.array_equal(k.track_ids, vs[i].track_ids) else None
+                      for k, i in zip(kw, here)]
+                kw = kw if any(k is not None for k in kw) else None
+            ident = match_views([vs[i] for i in here], s, kw)
+            per_window.append(window_persons(ident, [vs[i] for i in here]))
+            window_pairs.append(ident.pairs)
+            rejected += [{**r, "window": w} for r in ident.rejected]
+        elif here:
+            v = vs[here[0]]
+            per_window.append([{(v.name, int(t)): int(v.valid_tk[:, k].sum())} for k, t in enumerate(v.track_ids)])
+        else:
+            per_window.append([])
+    geo = TrackGeometry(views, edges)
+    chains = chain_windows(per_window, w_s.max_gap_windows, geo.coexist)
+    chains = link_chains(trim_weak_ends(chains), geo.ends, geo.coexist, w_s)
+    period = float(np.median([v.period for v in views]))
+    kept, dropped = select_chains(chains, period, w_s)
+    assignments, segments, frames = identities_from_chains(kept, views, edges)
+    assigned = {(c, t) for c, m in assignments.items() for t in m}
+    unassigned = [{"camera": v.name, "track": int(t), "reason": "no frame with landmarks"}
+                  for v in views for k, t in enumerate(v.track_ids) if not v.valid_tk[:, k].any()]
+    reasons = {}
+    for d in dropped:
+        for key in d["tracks"]:
+            c, t = key.rsplit(":", 1)
+            reasons.setdefault((c, int(t)), d["reason"])
+    unassigned += [{"camera": c, "track": t, "reason": why} for (c, t), why in sorted(reasons.items())
+                   if (c, t) not in assigned]
+    diag = {
+        "persons": len(kept), "windows": n_win, "window_s": w_s.window_s, "people": w_s.people,
+        "view_counts": {str(p): len(ch.views()) for p, ch in enumerate(kept)},
+        "multiview_frames": {str(p): ch.multiview_frames for p, ch in enumerate(kept)},
+        "chains": len(chains), "set_aside": dropped,
+        "segmented_tracks": sum(len({t for t, *_ in v}) for v in segments.values()),
+    }
+    settings_d = {**asdict(s), **{k: v for k, v in asdict(w_s).items()}}
+    return Identities(names, assignments, merge_pairs(window_pairs), rejected, unassigned, settings_d, diag, {},
+                      frames, segments)

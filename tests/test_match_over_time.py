@@ -1,0 +1,91 @@
+"""Identities over a take (matching/windows.py): a track that jumps to another person is split
+where the other views say so, a person whose track broke keeps one identity, a person seen by
+one camera or beyond --people is set aside with its reason, and the fit reads the segments."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from conftest import landmark_view, make_ring_rig, walking_people
+from mamma_kit.core.identities import Identities, read_identities, write_identities
+from mamma_kit.matching.match import MatchSettings
+from mamma_kit.matching.pairs import ViewTracks
+from mamma_kit.matching.windows import WindowSettings, match_take
+
+FPS = 10.0
+
+
+def take(P=2, T=80, seed=0, cams=3):
+    rng = np.random.default_rng(seed)
+    rig = make_ring_rig(cams)
+    X = walking_people(rng, P, T)
+    return rig, X, np.arange(T) / FPS, rng
+
+
+def views_of(rig, X, times, edit=None):
+    out = []
+    for c in rig:
+        lt = landmark_view(c, X, times)
+        if edit is not None:
+            lt = edit(c.name, lt) or lt
+        out.append(ViewTracks.from_landmarks(lt, c, times))
+    return out
+
+
+def person_at(ident: Identities, cam: str, track: int, t: float) -> int:
+    v = ident.person_frames(cam, np.array([track]), np.array([t]))
+    return int(v[0, 0])
+
+
+def test_a_track_that_jumps_to_the_other_person_is_split_where_the_views_say():
+    rig, X, times, _ = take()
+
+    def swap(cam, lt):
+        if cam == "cam0":  # from frame 40 on, cam0's tracks follow each other's person (a crossing)
+            lt.xy[40:] = lt.xy[40:, ::-1].copy()
+
+    ident = match_take(views_of(rig, X, times, swap), None, MatchSettings(), WindowSettings(window_s=1.0))
+    assert ident.diagnostics["persons"] == 2
+    p_early, p_late = person_at(ident, "cam1", 0, 1.0), person_at(ident, "cam1", 0, 7.0)
+    assert p_early == p_late  # cam1's track 0 never jumped: one person
+    assert person_at(ident, "cam0", 0, 1.0) == p_early
+    assert person_at(ident, "cam0", 0, 7.0) == person_at(ident, "cam1", 1, 7.0) != p_early
+    assert {t for t, *_ in ident.segments["cam0"]} == {0, 1}
+    assert "cam1" not in ident.segments  # tracks that stay on one person are whole
+
+
+def test_a_broken_track_keeps_one_identity_and_singletons_and_extra_people_are_set_aside():
+    rig, X, times, rng = take(P=3, seed=1)
+
+    def edit(cam, lt):
+        if cam == "cam0":  # cam0 loses person 0 for 1.5 s and finds them again as a new track
+            from mamma_kit.core.tracks import LandmarkTracks
+
+            out = LandmarkTracks.empty(cam, lt.image_size, lt.frame_times, np.arange(4), lt.n_landmarks)
+            out.xy[:, :3], out.visibility[:, :3], out.valid[:, :3] = lt.xy, lt.visibility, lt.valid
+            out.xy[50:, 3], out.visibility[50:, 3], out.valid[50:, 3] = lt.xy[50:, 0], 1.0, True
+            out.valid[35:, 0] = False
+            out.valid[:, 2] = False
+            return out
+        if cam != "cam1":  # person 2 is seen by cam1 only
+            lt.valid[:, 2] = False
+
+    views = views_of(rig, X, times, edit)
+    ident = match_take(views, None, MatchSettings(), WindowSettings(window_s=1.0))
+    assert ident.diagnostics["persons"] == 2
+    assert ident.person_of("cam0", 0) == ident.person_of("cam0", 3) == ident.person_of("cam1", 0)
+    why = {(u["camera"], u["track"]): u["reason"] for u in ident.unassigned}
+    assert "camera only" in why[("cam1", 2)]
+    # --people 1 keeps the better seen of the two
+    one = match_take(views, None, MatchSettings(), WindowSettings(window_s=1.0, people=1))
+    assert one.diagnostics["persons"] == 1
+    assert any("--people 1" in u["reason"] for u in one.unassigned)
+
+
+def test_segments_round_trip_and_reach_the_fit(tmp_path):
+    ident = Identities(["a", "b"], {"a": {3: 0}, "b": {7: 0, 8: 1}}, segments={"b": [(8, 0.0, 1.0, 1), (8, 2.0, 3.0, 0)]})
+    back = read_identities(write_identities(tmp_path / "identities.json", ident))
+    assert back.segments == ident.segments
+    pf = back.person_frames("b", np.array([7, 8]), np.array([0.5, 1.5, 2.5]))
+    assert pf.tolist() == [[0, 1], [0, -1], [0, 0]]
+    assert back.person_frames("a", np.array([3]), np.array([100.0])).tolist() == [[0]]
