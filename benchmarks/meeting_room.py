@@ -157,15 +157,18 @@ def follow(times_g: np.ndarray, truth_g3: np.ndarray, fits: dict) -> dict:
 
 
 def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per frame and track of the camera, which true person its BlazePose nose is on: 0, 1, or -1
-    (on neither: within a quarter of its skeleton's height of a projected MouthGT3D, else -1);
-    the track ids; and per frame and person whether the recording annotates that person in this
-    camera (posGT), i.e. whether the person is to be seen there."""
+    """Per frame and track of the camera, which true person it shows: 0, 1, or -1 for neither.
+    A track is on a person when its BlazePose nose lies within a quarter of its skeleton's height
+    of that person's projected MouthGT3D, or, where the nose is on neither (a head the mask left
+    out), when that person's mouth alone lies in the track's box grown by a fifth (a third
+    upwards); the track ids; and per frame and person whether the recording annotates that
+    person inside this camera's image (posGT), i.e. whether the person is to be seen there."""
     import cv2
 
-    from mamma_kit.core.tracks import KeypointTracks
+    from mamma_kit.core.tracks import KeypointTracks, MaskTracks
 
     kt = KeypointTracks.load(ws.keypoints_file(cam))
+    mt = MaskTracks.load(ws.mask_file(cam))
     times_g, truth = truth_mouths()
     t_ref = clocks[cam].to_ref(kt.frame_times)
     c = rig[cam]
@@ -173,13 +176,21 @@ def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.n
     near = np.abs(times_g[g] - t_ref) < 0.5 / FPS
     proj = np.stack([cv2.projectPoints(x, cv2.Rodrigues(c.R)[0], c.t, c.K, c.dist)[0][:, 0] for x in truth.values()])
     label = np.full(kt.valid.shape, -1)
+    col = {int(t): k for k, t in enumerate(mt.track_ids)}
     for k in range(kt.valid.shape[1]):
         f = np.flatnonzero(kt.valid[:, k] & near)
         nose = kt.xy[f, k, 0]
         h = np.maximum(np.nanmax(kt.xy[f, k, :, 1], -1) - np.nanmin(kt.xy[f, k, :, 1], -1), 60.0)
         d = np.linalg.norm(proj[:, g[f]] - nose[None], axis=-1)  # (2, n)
         best = np.argmin(d, 0)
-        label[f, k] = np.where(d[best, np.arange(len(f))] < np.maximum(0.25 * h, 15), best, -1)
+        lab = np.where(d[best, np.arange(len(f))] < np.maximum(0.25 * h, 15), best, -1)
+        b = mt.boxes[f, col[int(kt.track_ids[k])]]  # (n, 4) x0 y0 x1 y1
+        bw, bh = b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]
+        m = proj[:, g[f]]  # (2, n, 2)
+        inside = (m[..., 0] > b[:, 0] - 0.1 * bw) & (m[..., 0] < b[:, 2] + 0.1 * bw) & \
+                 (m[..., 1] > b[:, 1] - 0.33 * bh) & (m[..., 1] < b[:, 3])
+        only = inside.sum(0) == 1
+        label[f, k] = np.where(lab >= 0, lab, np.where(only, np.argmax(inside, 0), -1))
     # to be seen: the head annotated inside the image, at an instant with ground truth
     data = load_mat(cam)
     W, H = c.size

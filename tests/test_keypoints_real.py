@@ -317,3 +317,32 @@ def test_phone_stored_copies_give_the_same_tracks_and_keypoints(real_ws, tmp_pat
                 errs += list(np.linalg.norm(a.xy[ta, ka, BODY] - b.xy[tb, kb, BODY], axis=1)[vis] / h * 100)
         assert len(errs) > 100, c
         assert np.median(errs) < 1.0, f"{c}: keypoints {np.median(errs):.2f} % of the height from the original's"
+
+
+def test_without_a_head_count_the_views_agree_on_exactly_the_two_people(tmp_path, real_ws):
+    """`--people` is a hint: tracked without it, bystanders and fragments are kept per view, and
+    the match over the take keeps the two people that two or more cameras see at once."""
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.keypoints.stage import run_keypoints
+    from mamma_kit.masks.stage import run_track
+    from mamma_kit.matching.match import MatchSettings
+    from mamma_kit.matching.pairs import ViewTracks
+    from mamma_kit.matching.windows import WindowSettings, match_take
+    from mamma_kit.pipeline import init_workspace
+
+    init_workspace(tmp_path / "ws", [real_ws.root / "videos" / f"{c}.mp4" for c in CAMS],
+                   calibration=REAL / "calibration" / "Calib.qca.txt")
+    ws = Workspace(tmp_path / "ws")
+    run_track(ws, backend="pose", pictures=False)
+    run_keypoints(ws, pictures=False)
+    rig, _ = read_calibration(ws.calibration)
+    views = []
+    for c in CAMS:
+        kt = KeypointTracks.load(ws.keypoints_file(c))
+        views.append(ViewTracks.from_keypoints(kt, rig[c], kt.frame_times))
+    ident = match_take(views, None, MatchSettings(), WindowSettings())
+    assert ident.diagnostics["persons"] == 2, ident.diagnostics
+    assert [len(ident.views_of(p)) for p in ident.person_ids] == [4, 4]
+    for u in ident.unassigned:  # whatever else a view tracked is set aside with its reason
+        assert u["reason"]

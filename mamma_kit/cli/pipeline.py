@@ -50,7 +50,8 @@ def init_cmd(
                                                           "(background model; needs static cameras and a clean "
                                                           "plate), sam2 or gt."),
     people: Optional[int] = typer.Option(None, "--people", min=1, help="How many people the capture is about "
-                                                                       "(the trackers keep that many and drop bystanders)."),
+                                                                       "(match keeps the N the cameras see best and sets aside "
+                                                                       "bystanders; without it, everyone two cameras see at once)."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing capture.toml."),
     synced: bool = typer.Option(False, "--synced", help="The cameras share one clock (genlock, a synchronised lab "
                                                         "rig): sync writes identical clocks, no audio needed."),

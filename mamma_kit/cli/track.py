@@ -22,9 +22,10 @@ def track_cmd(
     sam2_checkpoint: Optional[Path] = typer.Option(None, "--sam2-checkpoint", help="sam2: checkpoint .pt."),
     sam2_config: Optional[str] = typer.Option(None, "--sam2-config", help="sam2: model config name, e.g. "
                                                                           "configs/sam2.1/sam2.1_hiera_t.yaml."),
-    people: Optional[int] = typer.Option(None, "--people", min=1, help="builtin, pose: how many people the capture is "
-                                                                     "about; pose drops the other people (bystanders) "
-                                                                     "(default: capture.toml \\[capture] people)."),
+    people: Optional[int] = typer.Option(None, "--people", min=1, help="builtin: how many people the capture is "
+                                                                     "about, to split blobs of people who touch (default: "
+                                                                     "capture.toml \\[capture] people). pose keeps every "
+                                                                     "person it follows: match decides who is who."),
     no_plate: bool = typer.Option(False, "--no-plate", help="builtin: background from the capture only, not from "
                                                             "the board videos."),
     chunk: int = typer.Option(64, "--chunk", min=2, help="sam2: frames per chunk (bounds memory)."),

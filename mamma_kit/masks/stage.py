@@ -48,7 +48,7 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
         options = {"checkpoint": sam2_checkpoint, "config": sam2_config, "prompts": prompts, "chunk": chunk,
                    "device": device}
     settings = {"backend": backend, "chunk": chunk if backend == "sam2" else None, "sam2_config": sam2_config,
-                "pictures": pictures, "people": people if backend in ("builtin", "pose") else None,
+                "pictures": pictures, "people": people if backend == "builtin" else None,
                 "plate": plate if backend == "builtin" else None}
     t0 = time.perf_counter()
     per_cam, todo = {}, []

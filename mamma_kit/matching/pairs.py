@@ -137,6 +137,44 @@ def _lines(F_33: np.ndarray, xy_n2: np.ndarray) -> np.ndarray:
     return l / np.where(n > 1e-15, n, np.nan)
 
 
+def _chunk_distances(a: ViewTracks, b: ViewTracks, sel: np.ndarray, F_ab: np.ndarray, cap: float):
+    """At a's frames ``sel`` (f,): per track pair and landmark, whether both views see it
+    (f, Ka, Kb, L), its capped symmetric epipolar distance in person heights, the same in px
+    and the px cap."""
+    xb, vb, hb, okb = resample_to(b, a.times_ref[sel])
+    xa, va, ha = a.xy_tkl2[sel], a.vis_tkl[sel], a.height_tk[sel]
+    lb = _lines(F_ab, xa)  # (f, Ka, L, 3) lines in b
+    la = _lines(F_ab.T, xb)  # (f, Kb, L, 3) lines in a
+    # point-line distances for every track pair: (f, Ka, Kb, L)
+    db = np.abs(np.einsum("fjlc,filc->fijl", xb, lb[..., :2]) + lb[:, :, None, :, 2])
+    da = np.abs(np.einsum("filc,fjlc->fijl", xa, la[..., :2]) + la[:, None, :, :, 2])
+    both = va[:, :, None, :] & vb[:, None, :, :] & okb[:, None, :, None]
+    rel = 0.5 * (da / ha[:, :, None, None] + db / hb[:, None, :, None])
+    both &= np.isfinite(rel)
+    cap_px = cap * (ha[:, :, None, None] + hb[:, None, :, None]) / 2
+    return both, np.minimum(np.nan_to_num(rel, nan=cap), cap), 0.5 * (da + db), cap_px
+
+
+def frame_distances(a: ViewTracks, b: ViewTracks, cap: float = 0.25, min_per_frame: int = 5,
+                    chunk: int = 32) -> np.ndarray:
+    """(T_a, Ka, Kb) per frame of a, the mean capped epipolar distance (person heights) of
+    every track pair at that instant; NaN where fewer than ``min_per_frame`` points are seen by
+    both (one frame's version of pair_distances)."""
+    Ka, Kb = a.n_tracks, b.n_tracks
+    out = np.full((len(a.times_ref), Ka, Kb), np.nan)
+    if Ka == 0 or Kb == 0 or not len(b.times_ref):
+        return out
+    F_ab = a.camera.fundamental_to(b.camera)
+    ta = np.flatnonzero(a.valid_tk.any(1))
+    for c0 in range(0, len(ta), chunk):
+        sel = ta[c0:c0 + chunk]
+        both, rel, _, _ = _chunk_distances(a, b, sel, F_ab, cap)
+        n = both.sum(-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[sel] = np.where(n >= min_per_frame, np.where(both, rel, 0.0).sum(-1) / np.maximum(n, 1), np.nan)
+    return out
+
+
 def pair_distances(a: ViewTracks, b: ViewTracks, cap: float = 0.25, max_frames: int = 150,
                    min_per_frame: int = 5, chunk: int = 16) -> PairResult:
     """Symmetric epipolar distances between every track of a and every track of b (see module doc)."""
@@ -156,21 +194,9 @@ def pair_distances(a: ViewTracks, b: ViewTracks, cap: float = 0.25, max_frames: 
         ta = ta[np.unique(np.round(np.linspace(0, len(ta) - 1, max_frames)).astype(int))]
     for c0 in range(0, len(ta), chunk):
         sel = ta[c0:c0 + chunk]
-        xb, vb, hb, okb = resample_to(b, a.times_ref[sel])
-        xa, va, ha = a.xy_tkl2[sel], a.vis_tkl[sel], a.height_tk[sel]
-        lb = _lines(F_ab, xa)  # (f, Ka, L, 3) lines in b
-        la = _lines(F_ab.T, xb)  # (f, Kb, L, 3) lines in a
-        # point-line distances for every track pair: (f, Ka, Kb, L)
-        db = np.abs(np.einsum("fjlc,filc->fijl", xb, lb[..., :2]) + lb[:, :, None, :, 2])
-        da = np.abs(np.einsum("filc,fjlc->fijl", xa, la[..., :2]) + la[:, None, :, :, 2])
-        both = va[:, :, None, :] & vb[:, None, :, :] & okb[:, None, :, None]
-        rel = 0.5 * (da / ha[:, :, None, None] + db / hb[:, None, :, None])
-        px = 0.5 * (da + db)
-        both &= np.isfinite(rel)
-        rel = np.where(both, np.minimum(rel, cap), 0.0)
+        both, rel, px, cap_px = _chunk_distances(a, b, sel, F_ab, cap)
         n_fij = both.sum(-1)
-        dist_sum += rel.sum((0, 3))
-        cap_px = cap * (ha[:, :, None, None] + hb[:, None, :, None]) / 2
+        dist_sum += np.where(both, rel, 0.0).sum((0, 3))
         px_sum += np.where(both, np.minimum(px, cap_px), 0.0).sum((0, 3))
         count += n_fij.sum(0)
         frames += (n_fij >= min_per_frame).sum(0)
