@@ -57,12 +57,16 @@ def main() -> None:
     for c, mt, kt in zip(cams, mts, kts):
         print(f"| {c} | {len(mt.track_ids)} | {' / '.join(str(int(n)) for n in mt.present.sum(0))} of "
               f"{len(mt.frame_times)} | {int(kt.valid.sum())} of {int(mt.present.sum())} |")
-    both = np.mean([mt.present.all(1).mean() if mt.present.shape[1] >= 2 else 0.0 for mt in mts])
-    print(f"both people tracked in {both:.1%} of the (view, frame) pairs")
     rig, _ = read_calibration(ws.calibration)
     rig = rig.subset(cams)
-    perms = [[(0, 1)] + [tuple(q) for q in rest] for rest in itertools.product([(0, 1), (1, 0)], repeat=len(cams) - 1)]
-    pct, px = min((reprojection(rig, kts, mts, p) for p in perms), key=lambda r: np.median(r[0]))
+    # the two people's tracks in each view: the pairing (of any two tracks per view; the tracker
+    # keeps bystanders too) whose triangulation agrees best
+    pairs = [list(itertools.permutations(range(mt.present.shape[1]), 2)) for mt in mts]
+    perms = [[pairs[0][0]] + list(rest) for rest in itertools.product(*pairs[1:])] if all(pairs) else []
+    scored = [(reprojection(rig, kts, mts, p), p) for p in perms]
+    (pct, px), best = min(scored, key=lambda r: np.median(r[0][0]))
+    both = np.mean([mt.present[:, list(b)].all(1).mean() for mt, b in zip(mts, best)])
+    print(f"both people tracked in {both:.1%} of the (view, frame) pairs")
     print(f"keypoints triangulated from all {len(cams)} views: reprojection median {np.median(pct):.2f} % of the box "
           f"height ({np.median(px):.1f} px), p90 {np.percentile(pct, 90):.1f} %")
 

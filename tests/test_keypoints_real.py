@@ -48,15 +48,18 @@ def real_ws(tmp_path_factory):
     return ws
 
 
-def test_pose_tracker_keeps_exactly_the_two_people_in_every_view(real_ws):
+def test_pose_tracker_follows_the_two_people_in_every_view(real_ws):
+    """Each view's two longest tracks are the two people, apart and present almost throughout
+    (other tracks, bystanders, are the match's to set aside: see the head-count test below)."""
     both = []
     for c in CAMS:
         mt = MaskTracks.load(real_ws.mask_file(c))
-        assert len(mt.track_ids) == 2, f"{c}: {len(mt.track_ids)} tracks"
-        both.append(mt.present.all(1))
+        assert len(mt.track_ids) >= 2, f"{c}: {len(mt.track_ids)} tracks"
+        k0, k1 = np.argsort(-mt.present.sum(0))[:2]
+        both.append(mt.present[:, [k0, k1]].all(1))
         # two different people: their masks barely overlap and their boxes differ
-        for t in np.flatnonzero(mt.present.all(1)):
-            a, b = mt.mask(t, 0), mt.mask(t, 1)
+        for t in np.flatnonzero(mt.present[:, [k0, k1]].all(1)):
+            a, b = mt.mask(t, k0), mt.mask(t, k1)
             assert (a & b).sum() == 0
     assert np.mean(both) >= 0.95, f"both people tracked in {np.mean(both):.0%} of the (view, frame) pairs"
 
@@ -299,17 +302,18 @@ def test_phone_stored_copies_give_the_same_tracks_and_keypoints(real_ws, tmp_pat
     run_keypoints(ws, pictures=False)
     for c in CAMS:
         a_mt, b_mt = MaskTracks.load(real_ws.mask_file(c)), MaskTracks.load(ws.mask_file(c))
-        assert len(b_mt.track_ids) == len(a_mt.track_ids) == 2, c
+        assert len(b_mt.track_ids) >= 2 and len(a_mt.track_ids) >= 2, c
         a, b = KeypointTracks.load(real_ws.keypoints_file(c)), KeypointTracks.load(ws.keypoints_file(c))
         ia = nearest_frames(b.frame_times, a.frame_times)  # the copy's frames in the original
         errs = []
         for tb, ta in enumerate(ia):
-            for kb in range(2):
-                if not b.valid[tb, kb]:
+            for kb in range(len(b_mt.track_ids)):
+                if not b.valid[tb, kb] or not a_mt.present[ta].any():
                     continue
                 # the original's track of this person: the one whose box centre is nearest
                 cb = b_mt.boxes[tb, kb].reshape(2, 2).mean(0)
-                ka = int(np.argmin([np.linalg.norm(a_mt.boxes[ta, k].reshape(2, 2).mean(0) - cb) for k in range(2)]))
+                ks = np.flatnonzero(a_mt.present[ta])
+                ka = int(ks[np.argmin([np.linalg.norm(a_mt.boxes[ta, k].reshape(2, 2).mean(0) - cb) for k in ks])])
                 h = a_mt.boxes[ta, ka, 3] - a_mt.boxes[ta, ka, 1]
                 if not a.valid[ta, ka] or np.linalg.norm(a_mt.boxes[ta, ka].reshape(2, 2).mean(0) - cb) > 0.1 * h:
                     continue  # the original did not track this person here

@@ -391,7 +391,7 @@ def select_people(mt: MaskTracks, people: int | None) -> tuple[MaskTracks, list[
     scored = sorted(((importance(mt, g), g) for g in groups), key=lambda x: -x[0])
     T = len(mt.frame_times)
     fps = 1.0 / float(np.median(np.diff(mt.frame_times))) if T > 1 else 30.0
-    min_frames = max(3, min(int(round(MIN_TRACK_S * fps)), T // 4))  # short clips: a quarter of them
+    min_frames = max(2, min(int(round(MIN_TRACK_S * fps)), T // 6))  # a clip under ~1 s: a sixth of it
     kept = []
     for score, g in scored:
         frames = mt.present[:, g].any(1)

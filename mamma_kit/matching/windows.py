@@ -215,6 +215,7 @@ class TrackGeometry:
     def __init__(self, views: list[ViewTracks], edges: np.ndarray):
         self.views = {v.name: v for v in views}
         self.window_of = {v.name: np.searchsorted(edges, v.times_ref, side="right") - 1 for v in views}
+        self._positions: dict = {}
         self.col = {(v.name, int(t)): k for v in views for k, t in enumerate(v.track_ids)}
         self.centroid = {}
         for v in views:
@@ -234,7 +235,14 @@ class TrackGeometry:
         return int(np.count_nonzero(pa & pb)) > max(2, handover_s / v.period)
 
     def positions(self, ch: _Chain) -> tuple[np.ndarray, np.ndarray]:
-        """Times (n,) and triangulated centroids (n, 3) of the chain's multi-view frames."""
+        """Times (n,) and triangulated centroids (n, 3) of the chain's multi-view frames (kept
+        for each state of a chain: linking and selection ask again and again)."""
+        key = tuple(sorted((w, tuple(sorted(m))) for w, m in ch.windows.items()))
+        if key not in self._positions:
+            self._positions[key] = self._positions_of(ch)
+        return self._positions[key]
+
+    def _positions_of(self, ch: _Chain) -> tuple[np.ndarray, np.ndarray]:
         pts = []
         for w in sorted(ch.windows):
             members = list(ch.windows[w])
@@ -260,17 +268,10 @@ class TrackGeometry:
     def ends(self, ch: _Chain, n: int = 5):
         """((t, X) of the chain's first multi-view frames, (t, X) of its last), X the median of
         ``n`` frames' triangulated centroids; None without two views at once."""
-        pts = []
-        for w in sorted(ch.windows):
-            members = list(ch.windows[w])
-            if len({c for c, _ in members}) < 2:
-                continue
-            pts += self._triangulated(members)
-        if not pts:
+        t, X = self.positions(ch)
+        if not len(t):
             return None
-        pts.sort(key=lambda p: p[0])
-        first, last = pts[:n], pts[-n:]
-        return ((first[0][0], np.median([p[1] for p in first], 0)), (last[-1][0], np.median([p[1] for p in last], 0)))
+        return (t[0], np.median(X[:n], 0)), (t[-1], np.median(X[-n:], 0))
 
     def _triangulated(self, members) -> list[tuple[float, np.ndarray]]:
         by_view: dict[str, list] = {}
@@ -322,16 +323,16 @@ def _closest_point(rays) -> np.ndarray:
 def select_chains(chains: list[_Chain], period: float, s: WindowSettings, n_frames: int,
                   same_place=lambda a, b: False) -> tuple[list[_Chain], list[dict]]:
     """The capture's persons (best supported first) and why the other chains are not
-    (``n_frames``: the take's length in frames; a take shorter than min_multiview_s asks for half;
+    (``n_frames``: the take's length in frames; a take under a few seconds asks for a sixth of it;
     ``same_place(a, b)``: chain a is where b is whenever both are seen, a duplicate of b)."""
     ranked = sorted(chains, key=lambda ch: (-ch.multiview_frames, -len(ch.views()), min(ch.windows)))
-    need = max(1, min(int(round(s.min_multiview_s / max(period, 1e-6))), n_frames // 2))
+    need = max(1, min(int(round(s.min_multiview_s / max(period, 1e-6))), max(2, n_frames // 6)))
     kept, dropped = [], []
     for ch in ranked:
         views = sorted(ch.views())
         why = None
         if len(views) < 2:
-            why = f"seen by {views[0] if views else 'no'} camera only"
+            why = f"seen by {views[0] + ' only' if views else 'no camera'}"
         elif ch.multiview_frames < need:
             why = f"seen by two or more cameras at once in {ch.multiview_frames} frames only (< {s.min_multiview_s} s)"
         elif any(same_place(ch, k) for k in kept):
