@@ -85,8 +85,9 @@ def run_case(ws_path: Path, cams: list[str], seed: int, builtin: bool) -> dict:
     from mamma_kit.core.tracks import LandmarkTracks
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.evaluation.identities import score, track_gt_persons
-    from mamma_kit.matching.match import match_views
+    from mamma_kit.matching.match import MatchSettings
     from mamma_kit.matching.pairs import ViewTracks
+    from mamma_kit.matching.windows import WindowSettings, match_take
 
     ws = Workspace(ws_path)
     rig, _ = read_calibration(ws.gt_dir / "calibration.toml")
@@ -94,7 +95,7 @@ def run_case(ws_path: Path, cams: list[str], seed: int, builtin: bool) -> dict:
     lts = {c: LandmarkTracks.load(ws.landmarks_file(c)) for c in cams}
     views = [ViewTracks.from_landmarks(lts[c], rig[c], clocks[c].to_ref(lts[c].frame_times)) for c in cams]
     t0 = time.perf_counter()
-    ident = match_views(views)
+    ident = match_take(views, None, MatchSettings(), WindowSettings())  # what `mamma-kit match` runs
     secs = time.perf_counter() - t0
     truth = track_gt_persons(ws, cams)
     ours = score(ident, truth)
