@@ -31,7 +31,7 @@ def main() -> None:
 
     ws = real_workspace(args.root)
     cap = ws.load_capture()
-    backend = PoseBackend(people=2, threads=args.threads)
+    backend = PoseBackend(threads=args.threads)
     track_fps, kp_rates = [], []
     for r in range(args.repeat):
         frames, t0 = 0, time.perf_counter()

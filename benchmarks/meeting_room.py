@@ -206,13 +206,13 @@ def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.n
 def identity_figures(ws, rig, clocks, ident) -> dict:
     """Per camera: the person-frames the recording annotates that some assigned track follows
     (with the right identity), and tracks or frames on no one."""
+    from mamma_kit.core.tracks import KeypointTracks
+
     out = {}
     pairs = []  # (fitted person, true person) per assigned, labelled track-frame
     per_cam = {}
     for cam in CAMS:
         label, tids, seen = track_truth(ws, rig, cam, clocks)
-        from mamma_kit.core.tracks import KeypointTracks
-
         kt = KeypointTracks.load(ws.keypoints_file(cam))
         person = np.where(kt.valid, ident.person_frames(cam, tids, clocks[cam].to_ref(kt.frame_times)), -1)
         per_cam[cam] = (label, person, seen)
@@ -229,7 +229,10 @@ def identity_figures(ws, rig, clocks, ident) -> dict:
     to_true = {pids[i]: int(j) for i, j in zip(r, c)}
     for cam, (label, person, seen) in per_cam.items():
         assigned = person >= 0
-        right = assigned & (label >= 0) & (np.vectorize(lambda p: to_true.get(int(p), -2))(person) == label)
+        true_of = np.full(int(person.max()) + 2, -2)  # fitted person id -> true person (-2: none)
+        for p, t in to_true.items():
+            true_of[p] = t
+        right = assigned & (label >= 0) & (true_of[person] == label)
         followed = np.zeros(seen.shape, bool)
         for k in range(label.shape[1]):
             for j in (0, 1):

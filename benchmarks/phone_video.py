@@ -188,7 +188,7 @@ def part_4k(root: Path, frames: int) -> None:
         n = sum(1 for _ in rd.frames())
         dec = (time.perf_counter() - t0) / n
         t0 = time.perf_counter()
-        mt, _ = PoseBackend(people=2).track_camera(CameraInput("cam01", p, p.parent))
+        mt, _ = PoseBackend().track_camera(CameraInput("cam01", p, p.parent))
         trk = (time.perf_counter() - t0) / n
         t0 = time.perf_counter()
         kt, summ = keypoints_for_tracks(est, mt, p)

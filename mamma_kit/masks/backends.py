@@ -20,7 +20,7 @@ def get_backend(name: str, **options) -> MaskBackend:
     if name == "pose":
         from mamma_kit.masks.pose import PoseBackend
 
-        return PoseBackend(**{k: v for k, v in options.items() if k in ("people",)})
+        return PoseBackend()
     if name == "gt":
         from mamma_kit.masks.gt import GtBackend
 

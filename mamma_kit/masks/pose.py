@@ -120,8 +120,7 @@ def skeleton_distance(xy_p2: np.ndarray, weight_p: np.ndarray, box: tuple[int, i
 class PoseBackend:
     name = "pose"
 
-    def __init__(self, people: int | None = None, threads: int | None = None):
-        self.people = people
+    def __init__(self, threads: int | None = None):
         self.threads = threads
         self._est = None
 
@@ -318,7 +317,7 @@ class PoseBackend:
             tracks = alive
         mt = builder.inner.build()
         summ = track_summary(mt)
-        mt, chosen = select_people(mt, self.people)
+        mt, chosen = keep_tracks(mt)
         summ.update({"detected_tracks": summ["tracks"], **track_summary(mt), "kept": chosen})
         return mt, summ
 
@@ -380,24 +379,21 @@ def importance(mt: MaskTracks, cols: list[int]) -> float:
     return float(np.nansum(h)) * (1.0 + 20.0 * min(move, 0.05)) * float(np.clip(np.nanmedian(edge) * 4, 0.25, 1.0))
 
 
-def select_people(mt: MaskTracks, people: int | None) -> tuple[MaskTracks, list[dict]]:
+def keep_tracks(mt: MaskTracks) -> tuple[MaskTracks, list[dict]]:
     """Join fragments and drop the shortest (shorter than MIN_TRACK_S: a glimpse or a false
-    detection). ``people`` does not cut tracks here: which tracks are the capture's people is
+    detection). No head count cuts tracks here: which tracks are the capture's people is
     decided across the views (`mamma-kit match --people`), since one view cannot tell a broken
     track, a duplicate and a bystander apart (AV16.3's meeting room: holding each view to 2
     tracks at once lost 10-15 % of the people's frames in two of the three cameras). Track ids
     are renumbered 0..K-1 by first appearance."""
-    groups = join_fragments(mt)
-    scored = sorted(((importance(mt, g), g) for g in groups), key=lambda x: -x[0])
     T = len(mt.frame_times)
     fps = 1.0 / float(np.median(np.diff(mt.frame_times))) if T > 1 else 30.0
     min_frames = max(2, min(int(round(MIN_TRACK_S * fps)), T // 6))  # a clip under ~1 s: a sixth of it
     kept = []
-    for score, g in scored:
+    for g in join_fragments(mt):
         frames = mt.present[:, g].any(1)
-        if frames.sum() < min_frames:
-            continue
-        kept.append((score, g, frames))
+        if frames.sum() >= min_frames:
+            kept.append((importance(mt, g), g, frames))
     W, H = mt.image_size
     first = sorted(kept, key=lambda x: int(np.flatnonzero(x[2])[0]))
     builder = MaskTrackBuilder(mt.camera, (W, H), mt.frame_times)

@@ -23,7 +23,8 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
               device: str = "cpu", pictures: bool = True, force: bool = False, people: int | None = None,
               plate: bool = True) -> dict:
     """Person mask tracks for every camera of the workspace (see the module docstring).
-    ``people``: how many people to expect (default: capture.toml's [capture] people)."""
+    ``people``: how many people to expect, for the builtin tracker's blob splitting (default:
+    capture.toml's [capture] people)."""
     from mamma_kit.masks.backends import BACKENDS
 
     if backend not in BACKENDS:
@@ -42,8 +43,6 @@ def run_track(ws, *, backend: str = "builtin", cameras: list[str] | str | None =
         from mamma_kit.masks.builtin import BuiltinSettings
 
         options = {"settings": BuiltinSettings(people=int(people) if people else None, use_board_plate=plate)}
-    if backend == "pose":
-        options = {"people": int(people) if people else None}
     if backend == "sam2":
         options = {"checkpoint": sam2_checkpoint, "config": sam2_config, "prompts": prompts, "chunk": chunk,
                    "device": device}

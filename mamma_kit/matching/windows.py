@@ -22,12 +22,14 @@ Cost: linear in the take's length (each window is matched on its own frames).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mamma_kit.core.identities import Identities
+from mamma_kit.core.tracks import nearest_frames
 from mamma_kit.matching.pairs import ViewTracks
 
 
@@ -72,14 +74,17 @@ class _Chain:
         return out
 
 
-def slice_view(v: ViewTracks | None, lo: float, hi: float) -> ViewTracks | None:
-    """The view's frames with lo <= t < hi and the tracks present in them (None if none)."""
+def slice_view(v: ViewTracks | None, lo: float, hi: float, track_ids: np.ndarray | None = None) \
+        -> ViewTracks | None:
+    """The view's frames with lo <= t < hi and the tracks present in them, or the given tracks
+    (a keypoint view sliced like its landmark view: matching pairs them column by column);
+    None if none."""
     if v is None:
         return None
     f = np.flatnonzero((v.times_ref >= lo) & (v.times_ref < hi))
     if not len(f):
         return None
-    keep = np.flatnonzero(v.valid_tk[f].any(0))
+    keep = np.flatnonzero(v.valid_tk[f].any(0) if track_ids is None else np.isin(v.track_ids, track_ids))
     if not len(keep):
         return None
     return ViewTracks(v.name, v.camera, v.times_ref[f], v.period, v.track_ids[keep],
@@ -258,9 +263,8 @@ class TrackGeometry:
         tb, Xb = self.positions(b)
         if not len(ta) or not len(tb):
             return False
-        j = np.clip(np.searchsorted(tb, ta), 1, max(len(tb) - 1, 1)) if len(tb) > 1 else np.zeros(len(ta), int)
-        j = np.where(np.abs(tb[j - 1] - ta) < np.abs(tb[j] - ta), j - 1, j) if len(tb) > 1 else j
-        both = np.abs(tb[j] - ta) < 0.05
+        j = nearest_frames(ta, tb, tol=0.05)
+        both = j >= 0
         if both.sum() < 3:
             return False
         return float(np.mean(np.linalg.norm(Xa[both] - Xb[j[both]], axis=1) < radius)) > share
@@ -274,6 +278,8 @@ class TrackGeometry:
         return (t[0], np.median(X[:n], 0)), (t[-1], np.median(X[-n:], 0))
 
     def _triangulated(self, members) -> list[tuple[float, np.ndarray]]:
+        """(t, X) per frame of the members' main view (the one with most frames) where two or more
+        views' tracks are seen: the point nearest to their centroids' rays."""
         by_view: dict[str, list] = {}
         for key in members:
             by_view.setdefault(key[0], []).append(key)
@@ -281,43 +287,48 @@ class TrackGeometry:
         vm = self.views[main]
         out = []
         for key in by_view[main]:
-            k = self.col[key]
-            for f in np.flatnonzero(vm.valid_tk[:, k]):
-                t = vm.times_ref[f]
-                rays = [self._ray(main, k, f)]
-                for c, keys in by_view.items():
-                    if c == main:
-                        continue
+            f = np.flatnonzero(vm.valid_tk[:, self.col[key]])
+            t = vm.times_ref[f]
+            rays = [self._rays(main, self.col[key], f)]  # each (F, 3) origin, (F, 3) direction, (F,) ok
+            for c, keys in by_view.items():
+                if c != main:
                     v = self.views[c]
-                    g = int(np.argmin(np.abs(v.times_ref - t)))
-                    if abs(v.times_ref[g] - t) > 0.5 * v.period + 1e-9:
-                        continue
+                    g = nearest_frames(t, v.times_ref, 0.5 * v.period)
                     for kk in keys:
-                        if v.valid_tk[g, self.col[kk]]:
-                            rays.append(self._ray(c, self.col[kk], g))
-                rays = [r for r in rays if r is not None]
-                if len(rays) >= 2:
-                    out.append((float(t), _closest_point(rays)))
+                        o, d, ok = self._rays(c, self.col[kk], np.maximum(g, 0))
+                        rays.append((o, d, ok & (g >= 0) & v.valid_tk[np.maximum(g, 0), self.col[kk]]))
+            X, n = _closest_points(rays)
+            out += [(float(ti), Xi) for ti, Xi in zip(t[n >= 2], X[n >= 2])]
         return out
 
-    def _ray(self, cam: str, k: int, f: int):
-        c = self.centroid[cam][f, k]
-        if not np.isfinite(c).all():
-            return None
+    def _rays(self, cam: str, k: int, frames: np.ndarray):
+        """Rays through track k's centroid at the frames: origins (F, 3), unit directions (F, 3),
+        and which exist (F,)."""
+        c = self.centroid[cam][frames, k]  # (F, 2)
+        ok = np.isfinite(c).all(-1)
         camera = self.views[cam].camera
-        d = camera.R.T @ np.linalg.solve(camera.K, np.r_[c, 1.0])
-        return camera.center, d / np.linalg.norm(d)
+        d = np.linalg.solve(camera.K, np.c_[np.nan_to_num(c), np.ones(len(c))].T).T @ camera.R
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        return np.broadcast_to(camera.center, d.shape), d, ok
 
 
-def _closest_point(rays) -> np.ndarray:
-    """The point nearest to all rays (origin, unit direction) in the least-squares sense."""
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for o, d in rays:
-        M = np.eye(3) - np.outer(d, d)
+def _closest_points(rays) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, the point nearest to that frame's rays in the least-squares sense, and how
+    many rays it had. ``rays``: [(origins (F, 3), directions (F, 3), ok (F,))]."""
+    F = len(rays[0][0])
+    A = np.zeros((F, 3, 3))
+    b = np.zeros((F, 3))
+    n = np.zeros(F, np.int64)
+    for o, d, ok in rays:
+        M = (np.eye(3) - d[:, :, None] * d[:, None, :]) * ok[:, None, None]
         A += M
-        b += M @ o
-    return np.linalg.lstsq(A, b, rcond=None)[0]
+        b += np.einsum("fij,fj->fi", M, o)
+        n += ok
+    X = np.full((F, 3), np.nan)
+    two = n >= 2
+    if two.any():
+        X[two] = np.linalg.solve(A[two], b[two][..., None])[..., 0]
+    return X, n
 
 
 def select_chains(chains: list[_Chain], period: float, s: WindowSettings, n_frames: int,
@@ -385,18 +396,14 @@ def refine_frames(person: dict[str, np.ndarray], views: list[ViewTracks], accept
         others = [b for b in views if b is not a]
         for bi, b in enumerate(others):
             D = frame_distances(a, b)  # (T, Ka, Kb)
-            g = np.clip(np.searchsorted(b.times_ref, a.times_ref), 1, max(len(b.times_ref) - 1, 1))
-            g = np.where(np.abs(b.times_ref[g - 1] - a.times_ref) < np.abs(b.times_ref[g] - a.times_ref), g - 1, g)
-            near = np.abs(b.times_ref[g] - a.times_ref) <= 0.5 * b.period + 1e-9
-            pb = np.where(near[:, None], person[b.name][g], -1)  # (T, Kb)
+            g = nearest_frames(a.times_ref, b.times_ref, 0.5 * b.period)
+            pb = np.where((g >= 0)[:, None], person[b.name][np.maximum(g, 0)], -1)  # (T, Kb)
             for p in range(P):
                 hold = pb == p  # (T, Kb)
                 with np.errstate(invalid="ignore"):
                     d = np.where(hold[:, None, :], D, np.nan)
                     per_p[p, bi] = np.where(hold.any(1)[:, None], np.nanmin(np.nan_to_num(d, nan=np.inf), -1), np.nan)
         per_p[~np.isfinite(per_p)] = np.nan
-        import warnings
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             Dp = np.nanmedian(per_p, axis=1)  # (P, T, K)
@@ -519,12 +526,11 @@ def match_take(views: list[ViewTracks], kp_views: list[ViewTracks | None] | None
     per_window, window_pairs, rejected = [], [], []
     for w in range(n_win):
         vs = [slice_view(v, edges[w], edges[w + 1]) for v in views]
-        ks = [slice_view(k, edges[w], edges[w + 1]) for k in kp_views] if kp_views is not None else None
         here = [i for i, v in enumerate(vs) if v is not None]
         if len(here) >= 2:
-            kw = [ks[i] for i in here] if ks is not None else None
-            if kw is not None and not all(k is not None and np.array_equal(k.track_ids, vs[i].track_ids)
-                                          for k, i in zip(kw, here)):
+            kw = None
+            if kp_views is not None:
+                kw = [slice_view(kp_views[i], edges[w], edges[w + 1], vs[i].track_ids) for i in here]
                 kw = [k if k is not None and np.array_equal(k.track_ids, vs[i].track_ids) else None
                       for k, i in zip(kw, here)]
                 kw = kw if any(k is not None for k in kw) else None
