@@ -14,6 +14,18 @@ chain runs from the builtin masks instead (track -> landmarks re-mapped to those
 match), which adds the tracker's broken and switched tracks.
 
     nice -n 10 python benchmarks/match_accuracy.py --root /work/data/track_match --seeds 3 [--builtin]
+
+With --chain the whole chain runs as a user runs it, on captures that stress identities: crowd-6
+(six people, eight cameras) at three seeds and room-wander (a furnished room, four people, two of
+them dressed alike, two who leave through a door and come back, 24 s). `mamma-kit track`
+(the default pose backend), `keypoints`, `landmarks` (MammaNet) and `match` run on the videos
+with the true calibration and clocks, and the identities are scored per frame against the
+renderer's masks (mamma_kit.evaluation.identities.frame_scores): the share of person-view-frames
+(a camera, a frame, a person it sees) given their own person, identity switches, tracks given a
+person that show nobody (false tracks), the tracker's tracks on nobody (furniture), and missed or
+extra persons.
+
+    nice -n 10 python benchmarks/match_accuracy.py --root /work/bench/ident --chain
 """
 
 from __future__ import annotations
@@ -106,12 +118,97 @@ def run_case(ws_path: Path, cams: list[str], seed: int, builtin: bool) -> dict:
             "baseline_persons": base["persons"], "wrong": ours["wrong"][:3]}
 
 
+# (recipe, folder, frames or None for the recipe's duration, render scale, seed or None)
+CHAIN_CASES = [("crowd-6", "crowd6_seed0", 60, 0.5, 0), ("crowd-6", "crowd6_seed11", 60, 0.5, 11),
+               ("crowd-6", "crowd6_seed23", 60, 0.5, 23), ("room-wander", "room_wander", None, 0.5, None),
+               # the same room for half as long: peak memory must not grow with the take
+               ("room-wander", "room_wander_12s", 120, 0.5, None)]
+
+
+def run_measured(stage: str, ws_path: Path) -> tuple[float, float]:
+    """`mamma-kit STAGE WS` in its own process: wall seconds and the peak resident memory (MB) of
+    that process and the workers it waited for."""
+    import os
+    import subprocess
+    import sys
+
+    t0 = time.perf_counter()
+    extra = ["--backend", "pose"] if stage == "track" else []  # what `mamma-kit init` sets for real captures
+    proc = subprocess.Popen([sys.executable, "-m", "mamma_kit", stage, str(ws_path), "--quiet", "--force", *extra])
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode:
+        raise RuntimeError(f"mamma-kit {stage} {ws_path} failed ({proc.returncode})")
+    # ru_maxrss (kB) is the largest single process among the stage and its children
+    return round(time.perf_counter() - t0, 1), round(usage.ru_maxrss / 1024, 0)
+
+
+def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed) -> dict:
+    """Render (once), then track -> keypoints -> landmarks -> match with the true calibration and
+    clocks, and score the identities per frame."""
+    import shutil
+
+    from mamma_kit.core.identities import read_identities
+    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.core.tracks import MaskTracks
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.evaluation.identities import frame_scores
+
+    ws_path = root / folder
+    if not (ws_path / "capture.toml").is_file():
+        from mamma_kit.synth.capture import synthesize
+
+        print(f"rendering {recipe} into {ws_path}; this takes a while")
+        synthesize(recipe, ws_path, seed=seed, frames=frames, scale=scale, board=False)
+    ws = Workspace(ws_path)
+    shutil.copyfile(ws.gt_dir / "calibration.toml", ws.calibration)
+    shutil.copyfile(ws.gt_dir / "timing.toml", ws.timing)
+    secs, peak_mb = {}, {}
+    for stage in ("track", "keypoints", "landmarks", "match"):
+        secs[stage], peak_mb[stage] = run_measured(stage, ws_path)
+    clocks, _ = read_timing(ws.timing)
+    r = frame_scores(ws, read_identities(ws.identities), clocks)
+    cams = ws.load_capture().camera_names
+    r["tracks"] = sum(len(MaskTracks.load(ws.mask_file(c)).track_ids) for c in cams)
+    r["seconds"] = secs
+    r["peak_rss_mb"] = peak_mb
+    r["cameras"] = len(cams)
+    return r
+
+
+def main_chain(args) -> None:
+    rows = []
+    print(f"{'capture':22s} {'cams':>4s} {'tracks':>6s} {'on nobody':>9s} {'persons':>7s} {'matched':>8s} "
+          f"{'wrong':>6s} {'switches':>8s} {'false':>5s} {'missed':>6s}  seconds (track/keypoints/landmarks/match)")
+    for recipe, folder, frames, scale, seed in CHAIN_CASES:
+        if args.case and folder not in args.case:
+            continue
+        r = chain_case(args.root, recipe, folder, frames, scale, seed)
+        name = f"{recipe} seed {seed}" if seed is not None else recipe
+        rows.append({"capture": name, **r})
+        s = r["seconds"]
+        print(f"{name:22s} {r['cameras']:4d} {r['tracks']:6d} {len(r['tracks_on_nothing']):9d} "
+              f"{r['persons']:3d}/{r['gt_persons']:<3d} {100 * r['matched']:7.1f}% {100 * r['wrong']:5.1f}% "
+              f"{r['switches']:8d} {len(r['false_tracks']):5d} {len(r['missed_persons']):6d}  "
+              f"{s['track']}/{s['keypoints']}/{s['landmarks']}/{s['match']}", flush=True)
+        m = r["peak_rss_mb"]
+        print(f"    peak memory MB (track/keypoints/landmarks/match): "
+              f"{m['track']:.0f}/{m['keypoints']:.0f}/{m['landmarks']:.0f}/{m['match']:.0f}", flush=True)
+        print(f"    matched per person {r['matched_per_person']}; false tracks {r['false_tracks']}; "
+              f"tracks on nobody {r['tracks_on_nothing']}", flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1, default=str))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("bench_data"), help="folder of the rendered captures")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--counts", default="2,3,4,8")
     ap.add_argument("--builtin", action="store_true", help="landmarks on builtin mask tracks instead of gt ids")
+    ap.add_argument("--chain", action="store_true",
+                    help="the whole chain from the videos (track, keypoints, landmarks, match), scored per frame")
+    ap.add_argument("--case", action="append", default=None, help="with --chain: only these folders; repeatable")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
     args = ap.parse_args()
     from mamma_kit.cli.app import main as cli
@@ -126,6 +223,8 @@ def main() -> None:
             if e.code not in (0, None):
                 raise RuntimeError(f"mamma-kit {' '.join(map(str, a))} failed ({e.code})")
 
+    if args.chain:
+        return main_chain(args)
     rows = []
     print(f"{'capture':20s} {'cams':>4s} {'seed':>4s} {'tracks':>6s} {'persons':>7s} {'accuracy':>8s} "
           f"{'by frames':>9s} {'union-find':>10s} {'match s':>7s}")

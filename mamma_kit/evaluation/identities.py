@@ -72,3 +72,101 @@ def evaluate(ws: Workspace) -> dict | None:
         return None
     ident = read_identities(ws.identities)
     return score(ident, track_gt_persons(ws, ident.cameras))
+
+
+def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: float = 0.25,
+                 min_iou: float = 0.25) -> dict:
+    """Identities per frame against ground truth, as a user sees them. Per camera and frame, tracks
+    and the gt persons the camera sees (at least ``min_visible`` of their surface landmarks visible)
+    are paired one-to-one by mask IoU (Hungarian, IoU >= ``min_iou``: a track is on at most one
+    person and a person has at most one track, as in CLEAR-MOT), and each pair carries the person
+    id identities.json gives that track at that instant (its segments). Person ids are mapped
+    one-to-one to gt persons by a Hungarian assignment over those person-view-frames. Returns:
+
+    - ``matched``: share of seen person-view-frames whose track has their own person;
+    - ``tracked``: share that some track is on, whatever its person (what the tracker found);
+    - ``wrong``: whose track has another person (or a person that is nobody);
+    - ``switches``: per camera and gt person, changes of the person id along the frames it has one;
+    - ``false_tracks``: tracks given a person that are on no gt person in most of those frames (an
+      object, or a second track on someone's body);
+    - ``tracks_on_nothing``: the tracker's tracks on no gt person in most of their frames;
+    - ``missed_persons`` / ``extra_persons``: gt persons without a person id, person ids without a
+      gt person. ``clocks``: camera -> ClockModel (camera time -> reference time) that match used.
+    """
+    from mamma_kit.evaluation.masks import compare_camera, pair_frames
+
+    per_cam = {}
+    for c in ident.cameras:
+        gt_path = ws.gt_dir / "masks" / f"{c}.npz"
+        if not (ws.mask_file(c).is_file() and gt_path.is_file()):
+            continue
+        pred, gt = MaskTracks.load(ws.mask_file(c)), MaskTracks.load(gt_path)
+        e = compare_camera(pred, gt)
+        lt = LandmarkTracks.load(ws.gt_dir / "landmarks" / f"{c}.npz")
+        tg = pair_frames(gt.frame_times, pred.frame_times)  # gt frame -> pred frame
+        pid_tk = ident.person_frames(c, pred.track_ids, clocks[c].to_ref(pred.frame_times))
+        pid_tk = np.where(tg[:, None] >= 0, pid_tk[np.clip(tg, 0, None)], -1)  # (T_gt, K)
+        present_tk = np.where(tg[:, None] >= 0, pred.present[np.clip(tg, 0, None)], False)
+        lt_gt = pair_frames(gt.frame_times, lt.frame_times)
+        T, P = len(gt.frame_times), len(gt.track_ids)
+        seen_tp = np.zeros((T, P), bool)
+        for j, g in enumerate(gt.track_ids):
+            col = list(lt.track_ids).index(g)
+            vis = np.where(lt_gt[:, None] >= 0, lt.visibility[np.clip(lt_gt, 0, None), col], 0.0)
+            seen_tp[:, j] = (vis > 0.5).mean(1) >= min_visible
+        # one-to-one per frame: which track is on which gt person
+        on_tk = np.full(present_tk.shape, -1, np.int64)  # gt column each track is paired with
+        for t in range(T):
+            iou = np.where(present_tk[t][:, None], e.iou_tkp[t], 0.0)
+            if iou.size and iou.max() >= min_iou:
+                r, cc = linear_sum_assignment(-iou)
+                ok = iou[r, cc] >= min_iou
+                on_tk[t, r[ok]] = cc[ok]
+        per_cam[c] = (e, pid_tk, present_tk, seen_tp, on_tk, pred.track_ids)
+    gts = sorted({int(g) for e, *_ in per_cam.values() for g in e.gt_ids})
+    pids = ident.person_ids
+    cover, M, n_tracked = {}, np.zeros((len(pids), len(gts)), np.int64), 0
+    for c, (e, pid_tk, present_tk, seen_tp, on_tk, _) in per_cam.items():
+        cov = np.full(seen_tp.shape, -1, np.int64)  # person id on each gt person per frame
+        t_idx, k_idx = np.nonzero(on_tk >= 0)
+        cov[t_idx, on_tk[t_idx, k_idx]] = pid_tk[t_idx, k_idx]
+        has = np.zeros(seen_tp.shape, bool)
+        has[t_idx, on_tk[t_idx, k_idx]] = True
+        n_tracked += int((has & seen_tp).sum())
+        for j, g in enumerate(e.gt_ids):
+            for p in cov[seen_tp[:, j] & (cov[:, j] >= 0), j]:
+                M[pids.index(int(p)), gts.index(int(g))] += 1
+        cover[c] = cov
+    r, ci = linear_sum_assignment(-M) if M.size else ([], [])
+    to_gt = {pids[i]: gts[j] for i, j in zip(r, ci) if M[i, j] > 0}
+    n_seen = n_ok = n_wrong = switches = 0
+    per_person = {g: [0, 0] for g in gts}
+    false_tracks, on_nothing = [], []
+    for c, (e, pid_tk, present_tk, seen_tp, on_tk, tids) in per_cam.items():
+        cov = cover[c]
+        for j, g in enumerate(e.gt_ids):
+            s = seen_tp[:, j]
+            mapped = np.array([to_gt.get(int(p), -2) if p >= 0 else -1 for p in cov[s, j]], np.int64)
+            ok = int(np.count_nonzero(mapped == g))
+            n_seen += int(s.sum())
+            n_ok += ok
+            n_wrong += int(np.count_nonzero((mapped != g) & (cov[s, j] >= 0)))
+            per_person[int(g)][0] += ok
+            per_person[int(g)][1] += int(s.sum())
+            seq = cov[:, j][cov[:, j] >= 0]
+            switches += int(np.count_nonzero(seq[1:] != seq[:-1]))
+        for k in range(on_tk.shape[1]):
+            pres, given = present_tk[:, k], pid_tk[:, k] >= 0
+            if pres.sum() and (on_tk[pres, k] < 0).mean() > 0.5:
+                on_nothing.append(f"{c}:{int(tids[k])}")
+            if given.sum() and (on_tk[given, k] < 0).mean() > 0.5:
+                false_tracks.append(f"{c}:{int(tids[k])}")
+    return {"matched": round(n_ok / n_seen, 4) if n_seen else None,
+            "tracked": round(n_tracked / n_seen, 4) if n_seen else None,
+            "wrong": round(n_wrong / n_seen, 4) if n_seen else None,
+            "person_view_frames": n_seen, "switches": switches,
+            "false_tracks": false_tracks, "tracks_on_nothing": on_nothing,
+            "missed_persons": [g for g in gts if g not in to_gt.values()],
+            "extra_persons": [p for p in pids if p not in to_gt],
+            "persons": len(pids), "gt_persons": len(gts),
+            "matched_per_person": {str(g): round(a / b, 4) if b else None for g, (a, b) in per_person.items()}}

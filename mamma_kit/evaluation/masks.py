@@ -53,6 +53,7 @@ class CameraMaskEval:
     # (T, P) IoU of the best single track per frame, whatever person it was given: segmentation
     # alone, without the tracker's identities (NaN where the person is not visible)
     best_track_iou_tp: np.ndarray
+    iou_tkp: np.ndarray | None = None  # (T, K, P) IoU of every track with every gt person per gt frame
 
 
 def compare_camera(pred: MaskTracks, gt: MaskTracks, min_area: int = 50, stride: int | None = None) -> CameraMaskEval:
@@ -109,7 +110,8 @@ def compare_camera(pred: MaskTracks, gt: MaskTracks, min_area: int = 50, stride:
     t2g = {int(pred.track_ids[k]): (int(gt_ids[assigned[k]]) if assigned[k] >= 0 else -1) for k in range(K)}
     fb_ids = np.where(fb >= 0, gt_ids[np.clip(fb, 0, None)] if P else -1, -1)
     best_tp = np.where(np.isfinite(iou_tp), np.nan_to_num(per_frame_iou).max(1, initial=0.0), np.nan)
-    return CameraMaskEval(pred.camera, gt_ids, t2g, iou_tp, touching, fb_ids, sw, best_tp)
+    return CameraMaskEval(pred.camera, gt_ids, t2g, iou_tp, touching, fb_ids, sw, best_tp,
+                          np.nan_to_num(per_frame_iou).astype(np.float32))
 
 
 def _mean(x) -> float | None:

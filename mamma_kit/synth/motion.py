@@ -397,6 +397,74 @@ def single_motion(kind: str, t: np.ndarray, rng: np.random.Generator, centre: np
     return PersonTrack(e, xy, heading, lift, root, ground)
 
 
+def wander_path(t: np.ndarray, rng: np.random.Generator, area: float, start: np.ndarray,
+                exit_route: np.ndarray | None = None, away_s: tuple[float, float] = (3.0, 6.0)) -> np.ndarray:
+    """A person walking from place to place (N, 2): straight walks at their own pace between
+    random points of the square ``area``, pausing 0.3-2.5 s at each. With ``exit_route`` (R, 2):
+    once, at a random time in the first half of the take, they walk along the route (to a door
+    and out of the room), stay away ``away_s`` seconds and come back the same way."""
+    speed = rng.uniform(0.85, 1.25)
+    knots_t, knots_xy = [float(t[0])], [np.asarray(start, float)]
+    leave_at = t[0] + rng.uniform(0.12, 0.45) * (t[-1] - t[0]) if exit_route is not None else np.inf
+
+    def walk_to(xy, pause):
+        d = float(np.linalg.norm(xy - knots_xy[-1]))
+        knots_t.append(knots_t[-1] + d / speed)
+        knots_xy.append(np.asarray(xy, float))
+        if pause > 0:
+            knots_t.append(knots_t[-1] + pause)
+            knots_xy.append(np.asarray(xy, float))
+
+    while knots_t[-1] < t[-1]:
+        if knots_t[-1] >= leave_at:
+            for q in exit_route[:-1]:
+                walk_to(q, 0.0)
+            walk_to(exit_route[-1], rng.uniform(*away_s))
+            for q in exit_route[-2::-1]:
+                walk_to(q, 0.0)
+            leave_at = np.inf
+        walk_to(rng.uniform(-area / 2, area / 2, 2), rng.uniform(0.3, 2.5))
+    kt = np.asarray(knots_t)
+    kx = np.stack(knots_xy)
+    xy = np.stack([np.interp(t, kt, kx[:, 0]), np.interp(t, kt, kx[:, 1])], 1)
+    from scipy.ndimage import gaussian_filter1d
+
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    return gaussian_filter1d(xy, 0.3 / dt, axis=0, mode="nearest")  # rounded corners, eased stops
+
+
+def wander_motion(t: np.ndarray, rng: np.random.Generator, area: float, start: np.ndarray,
+                  exit_route: np.ndarray | None) -> PersonTrack:
+    """Walking about a room (see :func:`wander_path`) with a gait that follows the pace, the body
+    turned along the way and kept when standing."""
+    N = len(t)
+    g = _Gen(rng, t)
+    e = rest_pose(N)
+    add_idle(e, g)
+    set_fingers(e, "left", 0.3 + g.wiggle(0.2, (0.2, 0.6)))
+    set_fingers(e, "right", 0.3 + g.wiggle(0.2, (0.2, 0.6)))
+    xy = wander_path(t, rng, area, start, exit_route)
+    v = np.gradient(xy, t, axis=0)
+    spd = np.linalg.norm(v, axis=1)
+    moving = spd > 0.15
+    h = np.where(moving, heading_of(v), np.nan)
+    if not moving.any():
+        h[:] = rng.uniform(0, 2 * np.pi)
+    idx = np.where(moving, np.arange(N), 0)
+    np.maximum.accumulate(idx, out=idx)  # standing keeps the last heading walked
+    h = h[idx]
+    first = np.flatnonzero(moving)[0] if moving.any() else 0
+    h[:first] = h[first]
+    heading = np.unwrap(h)
+    from scipy.ndimage import gaussian_filter1d
+
+    dt = float(np.median(np.diff(t))) if N > 1 else 1.0
+    heading = gaussian_filter1d(heading, 0.15 / dt, mode="nearest")
+    phase = 2 * np.pi * np.cumsum(np.r_[0, np.diff(t)] * spd / 1.4) + rng.uniform(0, 2 * np.pi)
+    lift = gait(e, phase, spd)
+    return PersonTrack(e, xy, heading, lift, np.zeros((N, 3)))
+
+
 # ---- two-person interactions ------------------------------------------------------------
 def couple_motion(kind: str, t: np.ndarray, rng: np.random.Generator, centre: np.ndarray) -> tuple[list[PersonTrack], list[dict]]:
     """Two people interacting; returns their tracks and contact targets for refinement:
@@ -534,15 +602,27 @@ def separate_paths(tracks: list[PersonTrack], min_dist: float = 0.9, iters: int 
 
 
 def generate_motion(kind: str, n_people: int, duration: float, rng: np.random.Generator,
-                    area: float = 3.0, rate: float = 120.0, t0: float = -1.0, t1: float | None = None) -> tuple[list[PersonTrack], np.ndarray, list[dict]]:
+                    area: float = 3.0, rate: float = 120.0, t0: float = -1.0, t1: float | None = None,
+                    exit_routes: list[np.ndarray] | None = None, leave: int = 0,
+                    ) -> tuple[list[PersonTrack], np.ndarray, list[dict]]:
     """Person tracks sampled at ``rate`` Hz over scene time [t0, t1] (default: the clip plus
-    margins for cameras that start early or stop late)."""
+    margins for cameras that start early or stop late). ``wander``: ``leave`` of the people walk
+    out along one of ``exit_routes`` (each (R, 2) way points from inside the room to outside)
+    once and come back."""
     t1 = duration + 0.5 if t1 is None else t1
     t = np.arange(t0, t1 + 0.5 / rate, 1.0 / rate)
     if kind in ("couple-dance", "hug", "handshake", "push"):
         tracks, contacts = couple_motion(kind, t, rng, rng.uniform(-0.3, 0.3, 2))
         return tracks, t, contacts
     centres = person_centres(n_people, area, rng) if n_people > 1 else rng.uniform(-0.2, 0.2, (1, 2))
+    if kind == "wander":  # some people leave through a door (exit_routes) and come back
+        routes = list(exit_routes or [])
+        leavers = set(rng.permutation(n_people)[:min(leave, n_people)].tolist()) if routes else set()
+        tracks = [wander_motion(t, rng, area, centres[p],
+                                routes[int(rng.integers(len(routes)))] if p in leavers else None)
+                  for p in range(n_people)]
+        separate_paths(tracks)
+        return tracks, t, []
     kinds = [kind] * n_people
     if kind == "crowd":
         kinds = [rng.choice(["walk", "walk", "gestures", "squat", "turn", "jump"]) for _ in range(n_people)]

@@ -51,8 +51,16 @@ Ranges written as ``[lo, hi]`` are sampled per camera/person from the recipe's s
 
     [motion]
     kind = "couple-dance"       # walk | turn | squat | jump | gestures | floor | couple-dance |
-                                # hug | handshake | push | mixed | crowd
+                                # hug | handshake | push | mixed | crowd | wander
     area_m = 3.0                # people move within this square
+    leave = 1                   # wander: how many people walk out through a door once and come back
+
+    [scene]                     # optional: a room with furniture (see synth/props.py)
+    room_radius_m = 6.5         # a wall at this radius hides what is behind it (default: an
+                                # outdoor backdrop 14 m away)
+    doors_deg = [45.0]          # doorways in the wall (azimuths, degrees)
+    chairs = 6                  # office chairs and tables, placed where nobody walks
+    tables = 2
 
     [audio]
     enabled = true              # false: videos without an audio stream
@@ -104,7 +112,7 @@ from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_toml
 
 MOTIONS = ("walk", "turn", "squat", "jump", "gestures", "floor", "couple-dance", "hug", "handshake", "push",
-           "mixed", "crowd", "stand")
+           "mixed", "crowd", "stand", "wander")
 RECIPES_DIR = Path(__file__).resolve().parents[2] / "recipes"
 
 
@@ -148,6 +156,7 @@ class Recipe:
     video: dict[str, Any] = field(default_factory=dict)
     flash: dict[str, Any] | None = None
     raw: dict[str, Any] = field(default_factory=dict)
+    scene: dict[str, Any] = field(default_factory=dict)
 
     @property
     def motion_kind(self) -> str:
@@ -309,6 +318,11 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
     kind = motion.string("kind", "walk", MOTIONS)
     if kind in ("couple-dance", "hug", "handshake", "push") and n_people != 2:
         raise motion.err("kind", f"'{kind}' needs people.count = 2 (got {n_people})")
+    motion.num("area_m", 3.0, lo=0.5, hi=30)
+    motion.num("leave", 0, lo=0, hi=8)
+    scene = _scene(_Fields(data.get("scene", {}), "scene."), cameras)
+    if kind == "wander" and int(motion.data.get("leave", 0)) and not scene.get("doors_deg"):
+        raise motion.err("leave", "people leave through doors: set [scene] room_radius_m and doors_deg")
     audio = _Fields(data.get("audio", {}), "audio.")
     sr = int(audio.num("sample_rate", 48000, lo=8000, hi=192000))
     audio.string("codec", "aac", ("aac", "pcm"))
@@ -376,7 +390,29 @@ def load_recipe(path_or_name: str | Path, seed: int | None = None) -> Recipe:
         cameras=cameras, clock=clock.data, people_count=n_people, people=persons, height_range=hr,
         motion=motion.data | {"kind": kind}, audio=audio.data | {"sample_rate": sr}, claps=claps,
         ltc=ltc, tmcd=tmcd, board=board, render=render.data, path=path, raw=data, flash=flash, video=video,
+        scene=scene,
     )
+
+
+def _scene(sf: _Fields, cameras: list[CameraSpec]) -> dict[str, Any]:
+    """[scene], checked: the room's wall and doors, furniture counts."""
+    out: dict[str, Any] = {"chairs": int(sf.num("chairs", 0, lo=0, hi=40)),
+                           "tables": int(sf.num("tables", 0, lo=0, hi=20))}
+    if "room_radius_m" in sf.data:
+        r = sf.num("room_radius_m", lo=2.0, hi=50.0)
+        far = max((float(np.linalg.norm(c.position[:2])) for c in cameras), default=0.0)
+        if far >= r:
+            raise sf.err("room_radius_m", f"{r} m puts cameras outside the room (the farthest is {far:.1f} m "
+                                          "from the centre)")
+        out["room_radius_m"] = r
+    doors = sf.data.get("doors_deg", [])
+    doors = doors if isinstance(doors, list) else [doors]
+    if any(isinstance(d, bool) or not isinstance(d, (int, float)) for d in doors):
+        raise sf.err("doors_deg", "expected a list of azimuths in degrees")
+    if doors and "room_radius_m" not in out:
+        raise sf.err("doors_deg", "doors need a wall: set room_radius_m")
+    out["doors_deg"] = [float(d) for d in doors]
+    return out
 
 
 def _video(vf: _Fields) -> dict[str, Any]:

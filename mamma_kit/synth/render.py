@@ -17,10 +17,14 @@ from mamma_kit.core.camera import Camera
 
 BACKGROUND_RADIUS = 14.0
 BACKGROUND_HEIGHT = 7.0
+ROOM_WALL_HEIGHT = 2.8  # m, the wall of a room scene
+DOOR_WIDTH, DOOR_HEIGHT = 1.0, 2.1  # m, its doorways
 
 
 @dataclass
 class PersonMesh:
+    """A coloured triangle mesh: a person, or a piece of furniture (synth/props.py)."""
+
     verts: np.ndarray  # (V, 3) world
     faces: np.ndarray  # (F, 3)
     colors: np.ndarray  # (V, 3) float in [0, 1]
@@ -34,9 +38,15 @@ class Frame:
 
 
 class Environment:
-    """Floor, background and light of a scene (deterministic in its seed)."""
+    """Floor, background, light and furniture of a scene (deterministic in its seed).
 
-    def __init__(self, rng: np.random.Generator):
+    By default the background is a distant backdrop (buildings and trees on a cylinder of
+    BACKGROUND_RADIUS m, the floor reaching past it); ``room_radius`` makes it a room: a wall of
+    ROOM_WALL_HEIGHT m at that radius that hides whatever is behind it, with dark doorways at the
+    azimuths ``doors_deg``, through which one sees out. ``props``: static meshes (furniture)."""
+
+    def __init__(self, rng: np.random.Generator, room_radius: float | None = None,
+                 doors_deg: tuple[float, ...] = (), props: list["PersonMesh"] | None = None):
         self.rng = rng
         self.floor_tex = _floor_texture(rng)  # covers 24 x 24 m
         self.wall_tex = _wall_texture(rng)
@@ -45,6 +55,11 @@ class Environment:
         self.ambient = rng.uniform(0.35, 0.5)
         self.sky_top = np.array([0.35, 0.55, 0.85]) * rng.uniform(0.9, 1.1)
         self.sky_bottom = np.array([0.8, 0.85, 0.9])
+        self.room = room_radius is not None
+        self.radius = float(room_radius) if self.room else BACKGROUND_RADIUS
+        self.wall_height = ROOM_WALL_HEIGHT if self.room else BACKGROUND_HEIGHT
+        self.doors = np.radians(np.asarray(doors_deg, float))
+        self.props = list(props or [])
 
     def shade_floor(self, X_n3: np.ndarray, blobs_xy: np.ndarray) -> np.ndarray:
         tex = _lookup(self.floor_tex, X_n3[:, 0] / 24.0 + 0.5, X_n3[:, 1] / 24.0 + 0.5)
@@ -55,23 +70,34 @@ class Environment:
             c = c * (1 - 0.45 * np.exp(-d2 / 0.12).max(1))[:, None]
         return c
 
-    def shade_background(self, C: np.ndarray, d_n3: np.ndarray) -> np.ndarray:
-        """Rays that miss people and floor: background cylinder or sky."""
+    def shade_background(self, C: np.ndarray, d_n3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rays that miss people and floor: the wall (or backdrop) or the sky. Returns the colours
+        (N, 3) and the distance along each ray to a surface that hides what is behind it (N,):
+        the room's wall, inf for the sky, doorways and the outdoor backdrop."""
         out = np.empty((len(d_n3), 3))
         a = (d_n3[:, :2] ** 2).sum(1)
         b = 2 * (d_n3[:, :2] * C[:2]).sum(1)
-        c = (C[:2] ** 2).sum() - BACKGROUND_RADIUS ** 2
+        c = (C[:2] ** 2).sum() - self.radius ** 2
         disc = np.maximum(b * b - 4 * a * c, 0)
         t = (-b + np.sqrt(disc)) / np.maximum(2 * a, 1e-12)
         z = C[2] + t * d_n3[:, 2]
-        wall = (z < BACKGROUND_HEIGHT) & (a > 1e-9)
+        wall = (z < self.wall_height) & (a > 1e-9)
         P = C + t[:, None] * d_n3
-        ang = np.arctan2(P[:, 1], P[:, 0]) / (2 * np.pi) + 0.5
-        tex = _lookup(self.wall_tex, ang, np.clip(z / BACKGROUND_HEIGHT, 0, 1))
+        az = np.arctan2(P[:, 1], P[:, 0])
+        ang = az / (2 * np.pi) + 0.5
+        tex = _lookup(self.wall_tex, ang, np.clip(z / self.wall_height, 0, 1))
         out[wall] = tex[wall] * (self.ambient + 0.45)
         h = np.clip(d_n3[~wall, 2], 0, 1)[:, None]
         out[~wall] = self.sky_bottom * (1 - h) + self.sky_top * h
-        return out
+        hides = np.full(len(d_n3), np.inf)
+        if self.room:
+            door = np.zeros(len(d_n3), bool)
+            for a0 in self.doors:  # a doorway DOOR_WIDTH wide and DOOR_HEIGHT tall: dark, open
+                gap = np.abs((az - a0 + np.pi) % (2 * np.pi) - np.pi) * self.radius
+                door |= wall & (gap < DOOR_WIDTH / 2) & (z < DOOR_HEIGHT)
+            out[door] = np.array([0.16, 0.14, 0.12]) * (0.9 + 0.2 * np.clip(z[door] / DOOR_HEIGHT, 0, 1))[:, None]
+            hides = np.where(wall & ~door, t, np.inf)
+        return out, hides
 
 
 def _lookup(tex: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -150,6 +176,7 @@ class CameraRenderer:
         self.dirs = dirs  # (H*W, 3) unit world directions
         self.zdir = camera.R[2]  # optical axis in world: depth = t * (d . zdir)
         self.cos_z = dirs @ self.zdir
+        self.props = PeopleScene(env.props) if env.props else None
         # the static part of the image (floor + background), shaded once without people
         self._static_rgb, self._static_depth = self._shade_static(np.arange(len(dirs)), np.zeros((0, 2)))
 
@@ -160,6 +187,8 @@ class CameraRenderer:
         return (self._static_rgb.reshape(h, w, 3) * 255.0).astype(np.float32)
 
     def _shade_static(self, idx: np.ndarray, blobs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Colour and z-depth of the floor, wall or sky and furniture seen by the pixels ``idx``
+        (without people; ``blobs``: the people's floor positions, for their contact shadows)."""
         d = self.dirs[idx]
         C = self.origin
         rgb = np.empty((len(idx), 3))
@@ -167,11 +196,34 @@ class CameraRenderer:
         with np.errstate(divide="ignore", invalid="ignore"):
             t_floor = np.where(d[:, 2] < -1e-9, -C[2] / d[:, 2], np.inf)
         floor = np.isfinite(t_floor) & (t_floor < 60)
+        if self.env.room:  # the floor ends at the wall
+            floor &= ((C[:2] + t_floor[:, None] * d[:, :2]) ** 2).sum(1) <= self.env.radius ** 2
         X = C + t_floor[floor, None] * d[floor]
         rgb[floor] = self.env.shade_floor(X, blobs)
         depth[floor] = t_floor[floor] * self.cos_z[idx][floor]
-        rgb[~floor] = self.env.shade_background(C, d[~floor])
+        rgb[~floor], t_wall = self.env.shade_background(C, d[~floor])
+        depth[~floor] = t_wall * self.cos_z[idx][~floor]
+        if self.props is not None:  # furniture in front of floor and wall
+            prim, tfar, u, v = self.props.cast(C, d)
+            hit = prim >= 0
+            z = np.where(hit, tfar * self.cos_z[idx], np.inf)
+            near = hit & (z < depth)
+            rgb[near] = self._shade_hits(self.props, idx[near], prim[near], u[near], v[near])
+            depth[near] = z[near]
         return rgb, depth
+
+    def _shade_hits(self, scene: "PeopleScene", pix, prim, u, v) -> np.ndarray:
+        """Colours (N, 3) of mesh surface points hit by the rays of pixels ``pix``."""
+        f = scene.faces[prim]
+        bary = np.stack([1 - u - v, u, v], 1)[..., None]
+        col = (scene.colors[f] * bary).sum(1)
+        n = (scene.normals[f] * bary).sum(1)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
+        lam = np.clip(n @ self.env.sun, 0, None)
+        # a little light from the camera side keeps silhouettes readable
+        rim = 0.15 * np.clip(-(n * self.dirs[pix]).sum(1), 0, 1)
+        shade = self.env.ambient + (1 - self.env.ambient) * lam + rim
+        return col * shade[:, None]
 
     def render(self, people: list[PersonMesh], rng: np.random.Generator | None = None, noise: float = 0.0,
                points_by_person: list[np.ndarray] | None = None,
@@ -238,16 +290,7 @@ class CameraRenderer:
         z = tfar * self.cos_z[pix]
         closer = z < depth[pix]
         pix, prim, z, u, v = pix[closer], prim[closer], z[closer], u[closer], v[closer]
-        f = scene.faces[prim]
-        bary = np.stack([1 - u - v, u, v], 1)[..., None]
-        col = (scene.colors[f] * bary).sum(1)
-        n = (scene.normals[f] * bary).sum(1)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
-        lam = np.clip(n @ self.env.sun, 0, None)
-        # a little light from the camera side keeps silhouettes readable
-        rim = 0.15 * np.clip(-(n * self.dirs[pix]).sum(1), 0, 1)
-        shade = self.env.ambient + (1 - self.env.ambient) * lam + rim
-        rgb[pix] = col * shade[:, None]
+        rgb[pix] = self._shade_hits(scene, pix, prim, u, v)
         depth[pix] = z
         inst[pix] = scene.face_person[prim]
 

@@ -249,9 +249,11 @@ def build_scene(recipe: Recipe, cams: list[SynthCamera]) -> Scene:
     s0 = min(float(c.scene_times[0]) for c in cams) - 0.1
     s1 = max(float(c.scene_times[-1]) for c in cams) + 0.1
     P = recipe.people_count
+    room = recipe.scene.get("room_radius_m")
     tracks, t, contacts = generate_motion(recipe.motion_kind, P, recipe.duration_s, rng,
                                           area=float(recipe.motion.get("area_m", 3.0)), rate=MOTION_RATE,
-                                          t0=s0, t1=s1)
+                                          t0=s0, t1=s1, exit_routes=exit_routes(room, recipe.scene.get("doors_deg", [])),
+                                          leave=int(recipe.motion.get("leave", 0)))
     betas = sample_betas(rng, P)
     for i, override in enumerate(recipe.people[:P]):
         if "betas" in override:
@@ -275,5 +277,24 @@ def build_scene(recipe: Recipe, cams: list[SynthCamera]) -> Scene:
         rest, _ = pose_mesh_np(body, {"betas": betas[p]})
         override = recipe.people[p] if p < len(recipe.people) else {}
         colors.append(person_colors(rest, part_names, rng, override.get("look")))
-    env = Environment(np.random.default_rng(recipe.seed + 5))
+    props = []
+    if recipe.scene.get("chairs") or recipe.scene.get("tables"):
+        from mamma_kit.synth.props import place_props
+
+        paths = np.stack([tr.xy for tr in tracks]) if tracks else np.zeros((0, 1, 2))
+        props = place_props(recipe.scene["chairs"], recipe.scene.get("tables", 0), np.random.default_rng(recipe.seed + 13),
+                            paths, np.array([c.camera.center[:2] for c in cams]), room or 8.0)
+    env = Environment(np.random.default_rng(recipe.seed + 5), room_radius=room,
+                      doors_deg=tuple(recipe.scene.get("doors_deg", [])), props=props)
     return Scene(recipe, body, clip, colors, env)
+
+
+def exit_routes(room_radius: float | None, doors_deg: list[float]) -> list[np.ndarray]:
+    """Per door, the way out of a round room (R, 2): to just inside the doorway, through it, then
+    sideways behind the wall, where no camera inside sees."""
+    out = []
+    for a in np.radians(doors_deg) if room_radius else []:
+        u, side = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+        out.append(np.stack([(room_radius - 0.8) * u, (room_radius + 0.7) * u,
+                             (room_radius + 0.9) * u + 1.8 * side]))
+    return out
