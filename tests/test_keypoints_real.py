@@ -64,6 +64,39 @@ def test_pose_tracker_follows_the_two_people_in_every_view(real_ws):
     assert np.mean(both) >= 0.95, f"both people tracked in {np.mean(both):.0%} of the (view, frame) pairs"
 
 
+def box_iou(a_4: np.ndarray, b_4: np.ndarray) -> float:
+    iw = max(0.0, min(a_4[2], b_4[2]) - max(a_4[0], b_4[0]))
+    ih = max(0.0, min(a_4[3], b_4[3]) - max(a_4[1], b_4[1]))
+    union = np.prod(a_4[2:] - a_4[:2]) + np.prod(b_4[2:] - b_4[:2]) - iw * ih
+    return float(iw * ih / union) if union > 0 else 0.0
+
+
+def test_one_track_per_body(real_ws):
+    """No two tracks on one walker: at no frame do two tracks' boxes overlap by IoU > 0.6 (the two
+    people here pass close, and in cam03 one behind the other)."""
+    for c in CAMS:
+        mt = MaskTracks.load(real_ws.mask_file(c))
+        for t in range(len(mt.frame_times)):
+            ks = np.flatnonzero(mt.present[t])
+            for a, b in itertools.combinations(ks, 2):
+                assert box_iou(mt.boxes[t, a], mt.boxes[t, b]) <= 0.6, \
+                    f"{c} frame {t}: tracks {mt.track_ids[a]} and {mt.track_ids[b]} on one body"
+
+
+def test_two_skeletons_on_one_body_are_one_track():
+    """same_bodies: masks of which the smaller lies mostly in the larger are one body, neighbours are
+    not (a shared edge of a few pixels), whatever the crops' offsets."""
+    from mamma_kit.masks.pose import same_bodies
+
+    body = np.zeros((100, 40), bool)
+    body[10:90, 10:30] = True
+    upper = body[:60].copy()  # the same body's top, cut where a frame's edge would cut a second skeleton
+    neighbour = np.zeros((100, 40), bool)
+    neighbour[10:90, 0:12] = True  # overlaps the body by a 2-px column
+    own = [(body, (100, 50, 140, 150)), (upper, (100, 50, 140, 110)), (neighbour, (128, 50, 168, 150)), None]
+    assert same_bodies(own) == [(0, 1)]
+
+
 def limb_points_inside(kt: KeypointTracks, masks: MaskTracks) -> float:
     """Share of the visible limb points that fall inside their own track's mask, grown by 2 % of the
     person's height (a point on an outline counts as on it); a point outside the image is outside."""

@@ -39,6 +39,12 @@ MAX_MISSED = 30
 MAX_COAST = 30
 MIN_COAST_AREA = 0.03
 COAST_SCORE = 0.1
+# the finer tiles: this share of the frame's short side, if at least MIN_TILE_PX
+FINE_TILE_SHARE = 0.5
+MIN_TILE_PX = 140
+# a new track starts only from a skeleton the landmark model flags a person at least this surely
+# (a followed one keeps going above MIN_FOLLOW_FLAG)
+MIN_START_FLAG = 0.9
 # tiles are looked at every this many frames (new people enter rarely; the detector costs 5 ms a call)
 TILE_EVERY = 5
 # a person's mask reaches at most this share of its ROI side from its skeleton
@@ -54,6 +60,13 @@ WORK_SIDE = 1920
 # the same joints with left and right swapped: BlazePose can swap sides on one person from one ROI
 # to the next (a person seen from behind), which must not make two people of one
 BODY_SWAPPED = np.r_[12, 11, 14, 13, 16, 15, 24, 23, 26, 25, 28, 27]
+# shoulders and hips, and swapped; two skeletons whose torsos lie within this share of the torso's
+# length of each other are one person
+TORSO, TORSO_SWAPPED = np.r_[11, 12, 23, 24], np.r_[12, 11, 24, 23]
+TORSO_SAME = 0.2
+# two tracks' masks (before shared pixels are split) of which the smaller lies this much inside the
+# larger are one body
+SAME_BODY = 0.75
 
 
 class _ScaledBuilder:
@@ -68,6 +81,23 @@ class _ScaledBuilder:
             mask_hw = cv2.resize(np.ascontiguousarray(mask_hw, np.uint8), tuple(self.inner.image_size),
                                  interpolation=cv2.INTER_NEAREST).view(bool)
         self.inner.add(t, track, mask_hw, score)
+
+
+def torso_overlap(xy_a: np.ndarray, xy_b: np.ndarray) -> float:
+    """Median distance of two skeletons' shoulders and hips (the smaller of as-is and sides swapped)
+    over their mean torso length: below TORSO_SAME they are one body seen twice. Two people's
+    torsos can coincide in an image only when one hides the other, and then the hidden one's
+    skeleton is the front one's anyway; arms, which BlazePose places differently from one ROI to
+    the next, do not count here."""
+    a, b = xy_a[TORSO], xy_b[TORSO]
+    d = min(np.median(np.linalg.norm(a - b, axis=1)), np.median(np.linalg.norm(a - xy_b[TORSO_SWAPPED], axis=1)))
+    length = 0.5 * (torso_length(xy_a) + torso_length(xy_b))
+    return float(d / max(length, 1.0))
+
+
+def torso_length(xy_p2: np.ndarray) -> float:
+    """Shoulder centre to hip centre (px)."""
+    return float(np.linalg.norm(xy_p2[[11, 12]].mean(0) - xy_p2[[23, 24]].mean(0)))
 
 
 def limb_distance(xy_a: np.ndarray, xy_b: np.ndarray) -> float:
@@ -90,16 +120,26 @@ class _Track:
     xy: np.ndarray | None = None  # (33, 2) its last points
     area: int = 0  # its last mask's pixels
     missed: int = 0
+    merged: bool = False  # its ROI found the body another track follows: a duplicate, not hidden
 
 
 def tiles(W: int, H: int) -> np.ndarray:
-    """(N, 4) overlapping square tiles (x1 y1 x2 y2) along the frame's longer side (none if square)."""
+    """(N, 4) overlapping square tiles (x1 y1 x2 y2): squares of the frame's short side along its
+    longer side (none if square), then squares of FINE_TILE_SHARE of the short side over the whole
+    frame, where those are at least MIN_TILE_PX: the detector finds people who fill a good part of
+    its input, and a person a third of the frame's height fills too little of the whole frame."""
+    out = []
     side = min(W, H)
     n = int(np.ceil(max(W, H) / side * 1.5)) if max(W, H) > 1.2 * side else 0
-    if n < 2:
-        return np.zeros((0, 4))
-    starts = np.linspace(0, max(W, H) - side, n)
-    return np.array([[s, 0, s + side, side] if W >= H else [0, s, side, s + side] for s in starts], float)
+    if n >= 2:
+        starts = np.linspace(0, max(W, H) - side, n)
+        out += [[s, 0, s + side, side] if W >= H else [0, s, side, s + side] for s in starts]
+    fine = FINE_TILE_SHARE * side
+    if fine >= MIN_TILE_PX:
+        xs = np.linspace(0, W - fine, max(2, int(np.ceil(W / fine * 1.5))))
+        ys = np.linspace(0, H - fine, max(2, int(np.ceil(H / fine * 1.5))))
+        out += [[x, y, x + fine, y + fine] for y in ys for x in xs]
+    return np.array(out, float).reshape(-1, 4)
 
 
 def skeleton_distance(xy_p2: np.ndarray, weight_p: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
@@ -156,11 +196,11 @@ class PoseBackend:
     @staticmethod
     def _distinct(res, order: np.ndarray) -> list[int]:
         """Candidates (in ``order`` of preference) that are not the same skeleton as a preferred one
-        (limb joints only: two people's heads can touch)."""
+        (limb joints or torsos: two people's heads can touch)."""
         keep: list[int] = []
         for n in order:
             same = any(limb_distance(res.xy[n], res.xy[m]) < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2])
-                       for m in keep)
+                       or torso_overlap(res.xy[n], res.xy[m]) < TORSO_SAME for m in keep)
             if not same:
                 keep.append(int(n))
         return keep
@@ -174,9 +214,10 @@ class PoseBackend:
                 cost[i, j] = limb_distance(tr.xy, res.xy[n]) / max(tr.roi[2], 1.0)
         return cost
 
-    def _masks(self, res, chosen: np.ndarray, W: int, H: int) -> list[np.ndarray | None]:
+    def _masks(self, res, chosen: np.ndarray, W: int, H: int) -> tuple[list[np.ndarray | None], list]:
         """Per chosen candidate, its bool mask (H, W): segmentation near its own skeleton, shared
-        pixels to the nearest skeleton."""
+        pixels to the nearest skeleton; and per candidate the (own mask, box) before sharing (or
+        None)."""
         prob_full, dist_full = [], []
         for n in chosen:
             prob, (x0, y0) = res.segmentation_of(int(n), (W, H))
@@ -212,7 +253,7 @@ class PoseBackend:
                 lose = both & ((theirs < mine) | ((theirs == mine) & (j < i)))
                 m[iy0:iy1, ix0:ix1] &= ~lose
             masks.append(m)
-        return masks
+        return masks, prob_full
 
     @staticmethod
     def _keep_masks(tracks: list[_Track], prev: dict[int, np.ndarray], W: int, H: int) -> list | None:
@@ -240,7 +281,7 @@ class PoseBackend:
         taken = [prev[tr.tid] for i, tr in enumerate(tracks) if i in got and tr.tid in prev]
         others = np.logical_or.reduce(taken) if taken else np.zeros((H, W), bool)
         for i, tr in enumerate(tracks):
-            if i in got or tr.xy is None or not 0 < tr.missed <= MAX_COAST:
+            if i in got or tr.xy is None or tr.merged or not 0 < tr.missed <= MAX_COAST:
                 continue
             n = int(np.flatnonzero(source == i)[0])
             prob, (x0, y0) = res.segmentation_of(n, (W, H))
@@ -286,16 +327,25 @@ class PoseBackend:
             r, c = linear_sum_assignment(gated) if gated.size else (np.zeros(0, int), np.zeros(0, int))
             got = {int(i): cands[int(j)] for i, j in zip(r, c) if gated[i, j] < 1e3}
             taken = set(got.values())
-            # a skeleton no track explains starts one if a detection found it (not a drifted ROI)
+            # a skeleton no track explains starts one if a detection found it (not a drifted ROI) and
+            # the landmark model is sure it is a person (furniture and posters can score 0.5-0.85)
             for n in cands:
-                if n not in taken and source[n] < 0:
+                if n not in taken and source[n] < 0 and res.score[n] >= MIN_START_FLAG:
                     near = cost[:, cands.index(n)].min() if cost.shape[0] else np.inf
                     if near >= TRACK_SHARE:
                         tracks.append(_Track(next_id, res.rois[n]))
                         got[len(tracks) - 1] = n
                         next_id += 1
             order = sorted(got)
-            masks = self._masks(res, np.array([got[i] for i in order], int), W, H)
+            masks, own = self._masks(res, np.array([got[i] for i in order], int), W, H)
+            # two tracks on one body (two ROIs' skeletons that BlazePose placed apart on one person,
+            # e.g. one cut off by the frame's edge): the younger one gives the body up
+            drop = {max(tracks[order[a]].tid, tracks[order[b]].tid) for a, b in same_bodies(own)}
+            if drop:
+                for i in [i for i in order if tracks[i].tid in drop]:
+                    del got[i]
+                order = sorted(got)
+                masks, _ = self._masks(res, np.array([got[i] for i in order], int), W, H)
             alive = []
             for i, tr in enumerate(tracks):
                 if i in got:
@@ -305,12 +355,19 @@ class PoseBackend:
                         builder.add(ti, tr.tid, m, float(res.score[n]))
                         prev[tr.tid] = m
                         tr.area = int(m.sum())
-                    tr.roi, tr.missed = res.next_rois[n], 0
+                    tr.roi, tr.missed, tr.merged = res.next_rois[n], 0, False
                     tr.xy = res.xy[n]
                     alive.append(tr)
+                elif tr.xy is None:  # started this frame on a body another track has: never was
+                    continue
                 else:  # keeps its last good ROI and points
                     prev.pop(tr.tid, None)
                     tr.missed += 1
+                    # its own ROI's skeleton is a body another track has: two tracks on one person,
+                    # so no sliver of that body is kept for it (see _coast)
+                    n = np.flatnonzero(source == i)
+                    tr.merged = tr.merged or tr.tid in drop or (len(n) > 0 and any(
+                        torso_overlap(res.xy[n[0]], res.xy[m]) < TORSO_SAME for m in got.values()))
                     if tr.missed < MAX_MISSED:
                         alive.append(tr)
             self._coast(tracks, got, res, source, builder, prev, ti, W, H)
@@ -320,6 +377,26 @@ class PoseBackend:
         mt, chosen = keep_tracks(mt)
         summ.update({"detected_tracks": summ["tracks"], **track_summary(mt), "kept": chosen})
         return mt, summ
+
+
+def same_bodies(own: list) -> list[tuple[int, int]]:
+    """Pairs (a, b) of candidates whose own masks (bool crop, (x0, y0, x1, y1) box) are one body:
+    more than SAME_BODY of the smaller lies in the larger."""
+    out = []
+    for a in range(len(own)):
+        for b in range(a + 1, len(own)):
+            if own[a] is None or own[b] is None:
+                continue
+            (ma, (ax0, ay0, ax1, ay1)), (mb, (bx0, by0, bx1, by1)) = own[a], own[b]
+            ix0, iy0, ix1, iy1 = max(ax0, bx0), max(ay0, by0), min(ax1, bx1), min(ay1, by1)
+            if ix1 <= ix0 or iy1 <= iy0:
+                continue
+            inter = np.count_nonzero(ma[iy0 - ay0:iy1 - ay0, ix0 - ax0:ix1 - ax0]
+                                     & mb[iy0 - by0:iy1 - by0, ix0 - bx0:ix1 - bx0])
+            smaller = min(np.count_nonzero(ma), np.count_nonzero(mb))
+            if smaller and inter > SAME_BODY * smaller:
+                out.append((a, b))
+    return out
 
 
 # ---- after the video: join fragments, keep the capture's people --------------------------------------
