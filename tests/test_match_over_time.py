@@ -111,3 +111,21 @@ def test_duplicate_tracks_of_one_person_are_not_a_third_person():
     assert ident.diagnostics["persons"] == 2
     why = {(u["camera"], u["track"]): u["reason"] for u in ident.unassigned}
     assert "duplicate" in why[("cam0", 2)] and "duplicate" in why[("cam1", 2)]
+
+
+def test_a_bystander_seen_by_fewer_cameras_than_the_capture_people_is_set_aside():
+    """Two people seen by all four cameras, a third by two of them at once at most: the third stands
+    outside the cameras' common view, whatever --people says; with three cameras for everyone, all
+    three are persons."""
+    from mamma_kit.matching.windows import Chain, select_chains
+
+    def chain(cams, frames=20, windows=(0, 1)):
+        return Chain({w: {(c, i): frames for i, c in enumerate(cams)} for w in windows}, multiview_frames=2 * frames)
+
+    people = [chain(["a", "b", "c", "d"]), chain(["a", "b", "c", "d"])]
+    for n in (None, 3):
+        kept, dropped = select_chains(people + [chain(["a", "b"])], 0.1, WindowSettings(people=n), 200)
+        assert len(kept) == 2 and "bystander" in dropped[0]["reason"]
+    kept, _ = select_chains([chain(["a", "b", "c"]), chain(["a", "b", "c"]), chain(["b", "c", "d"])], 0.1,
+                            WindowSettings(), 200)
+    assert len(kept) == 3

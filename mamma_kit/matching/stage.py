@@ -64,6 +64,7 @@ def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path |
         pic = plot_matching(ident, ws.report_dir / "match" / "affinities.png")
         picture = ws.relative(pic)
         outputs.append(pic)
+        outputs += identity_pictures(ws, ident, cams, tpath)
     secs = time.perf_counter() - t0
     summary = {"cameras": cams, "persons": ident.persons(), "unassigned": ident.unassigned,
                "rejected": len(ident.rejected), "time_pairing": ident.diagnostics.get("time_pairing"),
@@ -77,3 +78,16 @@ def run_match(ws, *, cameras: list[str] | str | None = None, calibration: Path |
     log.info(f"identities.json written ({len(ident.person_ids)} persons, {len(ident.rejected)} rejected "
              f"matches) in {secs:.1f} s")
     return {"stage": "match", "skipped": False, "reason": state.reason, **summary, "seconds": round(secs, 2)}
+
+
+def identity_pictures(ws, ident, cams: list[str], timing: Path | None) -> list[Path]:
+    """report/match/<cam>.png: who is who in one frame per camera, and what was set aside."""
+    from mamma_kit.core.tracks import MaskTracks
+    from mamma_kit.matching.match import camera_times
+    from mamma_kit.matching.pictures import write_identity_pictures
+
+    masks = {c: MaskTracks.load(ws.mask_file(c)) for c in cams if ws.mask_file(c).is_file()}
+    if not masks:
+        return []
+    times, _ = camera_times(ws, list(masks), masks, timing)
+    return write_identity_pictures(ws, ident, times, ws.report_dir / "match")

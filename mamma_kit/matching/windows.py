@@ -51,10 +51,14 @@ class WindowSettings:
     # (AV16.3 meeting room at 0.12 / 0.2 / 0.3: cam2 followed right 82 / 91 / 91 %, cam3 wrong
     # person 0 / 7.7 / 11.6 %)
     refine_reject: float = 0.2
+    # a person of the capture is seen by at least this share of the views that see the best-seen
+    # person at once (rounded up): a bystander at the edge of the room, seen by two of four cameras
+    # while the capture's people are seen by all four, stands outside the cameras' common view
+    min_view_share: float = 0.6
 
 
 @dataclass
-class _Chain:
+class Chain:
     windows: dict[int, dict[tuple[str, int], int]] = field(default_factory=dict)  # window -> {(cam, track): frames}
     multiview_frames: int = 0
 
@@ -64,6 +68,18 @@ class _Chain:
 
     def views(self) -> set[str]:
         return {c for m in self.windows.values() for c, _ in m}
+
+    def peak_views(self) -> int:
+        """The most views that see the person at once: per window, the views holding it for at
+        least half as many frames as its best view there."""
+        best = 0
+        for m in self.windows.values():
+            per_view: dict[str, int] = {}
+            for (c, _), n in m.items():
+                per_view[c] = per_view.get(c, 0) + n
+            top = max(per_view.values(), default=0)
+            best = max(best, sum(1 for n in per_view.values() if n >= 0.5 * top > 0))
+        return best
 
     def tracks(self) -> dict[tuple[str, int], set[int]]:
         """Each (camera, track) of the chain and the windows it holds it in."""
@@ -110,9 +126,9 @@ def multiview_frames(members: dict[tuple[str, int], int]) -> int:
     return counts[1] if len(counts) > 1 else 0
 
 
-def chain_windows(per_window: list[list[dict]], max_gap: int, coexist=lambda *a: True) -> list[_Chain]:
+def chain_windows(per_window: list[list[dict]], max_gap: int, coexist=lambda *a: True) -> list[Chain]:
     """Chains of window persons sharing tracks (see module doc); ``coexist`` as in compatible."""
-    chains: list[_Chain] = []
+    chains: list[Chain] = []
     for w, persons in enumerate(per_window):
         live = [i for i, ch in enumerate(chains) if w - ch.last <= max_gap + 1]
         score = np.zeros((len(live), len(persons)))
@@ -135,7 +151,7 @@ def chain_windows(per_window: list[list[dict]], max_gap: int, coexist=lambda *a:
                 if not ({c for c, _ in now} & {c for c, _ in m}):
                     ch.windows[w] = {**now, **m}
                     continue
-            chains.append(_Chain({w: dict(m)}))
+            chains.append(Chain({w: dict(m)}))
         for b, i in taken.items():
             now = chains[i].windows.get(w, {})
             chains[i].windows[w] = {**now, **persons[b]}
@@ -154,7 +170,7 @@ def chain_windows(per_window: list[list[dict]], max_gap: int, coexist=lambda *a:
     return chains
 
 
-def compatible(a: _Chain, b: _Chain, coexist) -> bool:
+def compatible(a: Chain, b: Chain, coexist) -> bool:
     """No view holds a track of ``a`` and another of ``b`` that co-exist in the windows each
     chain holds it (``coexist(track_a, windows_a, track_b, windows_b)``)."""
     ta, tb = a.tracks(), b.tracks()
@@ -162,7 +178,7 @@ def compatible(a: _Chain, b: _Chain, coexist) -> bool:
                    for ka, wa in ta.items() for kb, wb in tb.items())
 
 
-def trim_weak_ends(chains: list[_Chain]) -> list[_Chain]:
+def trim_weak_ends(chains: list[Chain]) -> list[Chain]:
     """A chain's first and last windows seen by one view only are split off as chains of their
     own: a lone view's track at a chain's end is where a tracker jumps to someone else, and
     across a gap only the multi-view part says where the person is."""
@@ -174,16 +190,16 @@ def trim_weak_ends(chains: list[_Chain]) -> list[_Chain]:
             out.append(ch)
             continue
         lo, hi = strong[0], strong[-1]
-        out.append(_Chain({w: m for w, m in ch.windows.items() if lo <= w <= hi}))
+        out.append(Chain({w: m for w, m in ch.windows.items() if lo <= w <= hi}))
         for part in ([w for w in ws if w < lo], [w for w in ws if w > hi]):
             if part:
-                out.append(_Chain({w: ch.windows[w] for w in part}))
+                out.append(Chain({w: ch.windows[w] for w in part}))
     for ch in out:
         ch.multiview_frames = sum(multiview_frames(m) for m in ch.windows.values())
     return out
 
 
-def link_chains(chains: list[_Chain], ends, coexist, s: WindowSettings) -> list[_Chain]:
+def link_chains(chains: list[Chain], ends, coexist, s: WindowSettings) -> list[Chain]:
     """Chains that follow each other in time where a person could walk from one's end to the
     other's start (``ends(chain)`` -> ((t, X) first, (t, X) last) of its multi-view frames, or
     None), with no view conflict, are one person (nearest pairs first)."""
@@ -239,7 +255,7 @@ class TrackGeometry:
         pb = v.valid_tk[:, self.col[b]] & np.isin(win, list(wins_b))
         return int(np.count_nonzero(pa & pb)) > max(2, handover_s / v.period)
 
-    def positions(self, ch: _Chain) -> tuple[np.ndarray, np.ndarray]:
+    def positions(self, ch: Chain) -> tuple[np.ndarray, np.ndarray]:
         """Times (n,) and triangulated centroids (n, 3) of the chain's multi-view frames (kept
         for each state of a chain: linking and selection ask again and again)."""
         key = tuple(sorted((w, tuple(sorted(m))) for w, m in ch.windows.items()))
@@ -247,7 +263,7 @@ class TrackGeometry:
             self._positions[key] = self._positions_of(ch)
         return self._positions[key]
 
-    def _positions_of(self, ch: _Chain) -> tuple[np.ndarray, np.ndarray]:
+    def _positions_of(self, ch: Chain) -> tuple[np.ndarray, np.ndarray]:
         pts = []
         for w in sorted(ch.windows):
             members = list(ch.windows[w])
@@ -256,7 +272,7 @@ class TrackGeometry:
         pts.sort(key=lambda p: p[0])
         return np.array([p[0] for p in pts]), np.array([p[1] for p in pts]).reshape(-1, 3)
 
-    def same_place(self, a: _Chain, b: _Chain, radius: float = 0.35, share: float = 0.5) -> bool:
+    def same_place(self, a: Chain, b: Chain, radius: float = 0.35, share: float = 0.5) -> bool:
         """Chain a is within ``radius`` of chain b at more than ``share`` of the instants both are
         triangulated (and there are some): two people cannot stand in one place."""
         ta, Xa = self.positions(a)
@@ -269,7 +285,7 @@ class TrackGeometry:
             return False
         return float(np.mean(np.linalg.norm(Xa[both] - Xb[j[both]], axis=1) < radius)) > share
 
-    def ends(self, ch: _Chain, n: int = 5):
+    def ends(self, ch: Chain, n: int = 5):
         """((t, X) of the chain's first multi-view frames, (t, X) of its last), X the median of
         ``n`` frames' triangulated centroids; None without two views at once."""
         t, X = self.positions(ch)
@@ -331,14 +347,16 @@ def _closest_points(rays) -> tuple[np.ndarray, np.ndarray]:
     return X, n
 
 
-def select_chains(chains: list[_Chain], period: float, s: WindowSettings, n_frames: int,
-                  same_place=lambda a, b: False) -> tuple[list[_Chain], list[dict]]:
+def select_chains(chains: list[Chain], period: float, s: WindowSettings, n_frames: int,
+                  same_place=lambda a, b: False) -> tuple[list[Chain], list[dict]]:
     """The capture's persons (best supported first) and why the other chains are not
     (``n_frames``: the take's length in frames; a take under a few seconds asks for a sixth of it;
     ``same_place(a, b)``: chain a is where b is whenever both are seen, a duplicate of b)."""
     ranked = sorted(chains, key=lambda ch: (-ch.multiview_frames, -len(ch.views()), min(ch.windows)))
     need = max(1, min(int(round(s.min_multiview_s / max(period, 1e-6))), max(2, n_frames // 6)))
     kept, dropped = [], []
+    peak = max((ch.peak_views() for ch in ranked if ch.multiview_frames >= need), default=0)
+    min_views = max(2, int(np.ceil(s.min_view_share * peak - 1e-9)))
     for ch in ranked:
         views = sorted(ch.views())
         why = None
@@ -346,6 +364,9 @@ def select_chains(chains: list[_Chain], period: float, s: WindowSettings, n_fram
             why = f"seen by {views[0] + ' only' if views else 'no camera'}"
         elif ch.multiview_frames < need:
             why = f"seen by two or more cameras at once in {ch.multiview_frames} frames only (< {s.min_multiview_s} s)"
+        elif ch.peak_views() < min_views:
+            why = (f"seen by {ch.peak_views()} cameras at once at most, the best-seen person by {peak}: outside the "
+                   "cameras' common view (a bystander)")
         elif any(same_place(ch, k) for k in kept):
             pid = next(i for i, k in enumerate(kept) if same_place(ch, k))
             why = f"where person {pid} is whenever both are seen: duplicate tracks of that person"
@@ -359,7 +380,7 @@ def select_chains(chains: list[_Chain], period: float, s: WindowSettings, n_fram
     return kept, dropped
 
 
-def person_arrays(kept: list[_Chain], views: list[ViewTracks], edges: np.ndarray) -> dict[str, np.ndarray]:
+def person_arrays(kept: list[Chain], views: list[ViewTracks], edges: np.ndarray) -> dict[str, np.ndarray]:
     """Per view (T, K) the person id (rank among the kept chains) each track shows at each of
     its frames by the windows' chaining; -1 for none."""
     out = {}

@@ -119,6 +119,8 @@ class _Builder:
             return s
         for t in identity_tables(d.identities):
             s.table(*t)
+        self.add_camera_pngs(s, "match", lambda c: f"{c}: who is who in one frame: tracks tinted by person (P0, "
+                                                   "P1, ...), tracks set aside outlined in grey with the reason.")
         p = self.out / "match" / "affinities.png"
         if p.is_file():
             s.figure(self.rel(p), p, AFFINITIES_CAPTION)
