@@ -129,18 +129,20 @@ def triangulated(rig, others, kts, kt_times_t, idx_of, xy_of, w_of):
     from mamma_kit.core.camera import Rig, triangulate_points
     from mamma_kit.core.tracks import nearest_frames
 
-    xy_c, w_c, cams = [], [], []
-    for c, ot in others:
+    best: dict[str, tuple] = {}  # camera -> (weight, xy, w): a view with two tracks of the person
+    for c, ot in others:         # at this instant (a fragment beside the whole) gives its surer one
         ko = np.flatnonzero(kts[c].track_ids == ot)
         to = nearest_frames(kt_times_t, kts[c].frame_times)[0] if len(ko) else -1
         if to < 0 or not kts[c].valid[to, ko[0]]:
             continue
-        xy_c.append(xy_of(kts[c], to, ko[0]))
-        w_c.append(w_of(kts[c], to, ko[0]))
-        cams.append(rig[c])
-    if len(cams) < 2:
+        w = w_of(kts[c], to, ko[0])
+        if c not in best or float(np.sum(w)) > best[c][0]:
+            best[c] = (float(np.sum(w)), xy_of(kts[c], to, ko[0]), w)
+    if len(best) < 2:
         return None
-    return triangulate_points(Rig(cams), np.nan_to_num(np.stack(xy_c)), np.stack(w_c))
+    cams = [rig[c] for c in best]
+    return triangulate_points(Rig(cams), np.nan_to_num(np.stack([b[1] for b in best.values()])),
+                              np.stack([b[2] for b in best.values()]))
 
 
 def body_xy(kt, t, k):

@@ -156,10 +156,15 @@ def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed)
 
     ws_path = root / folder
     if not (ws_path / "capture.toml").is_file():
-        from mamma_kit.synth.capture import synthesize
+        import subprocess
+        import sys
 
-        print(f"rendering {recipe} into {ws_path}; this takes a while")
-        synthesize(recipe, ws_path, seed=seed, frames=frames, scale=scale, board=False)
+        # in its own process: Linux keeps a process's peak memory across fork and exec, so a render
+        # in this one would show in every stage's figure below
+        print(f"rendering {recipe} into {ws_path}; this takes a while", flush=True)
+        subprocess.run([sys.executable, "-m", "mamma_kit", "synth", recipe, "--out", str(ws_path), "--scale",
+                        str(scale), "--no-board", "--quiet"] + (["--frames", str(frames)] if frames else [])
+                       + (["--seed", str(seed)] if seed is not None else []), check=True)
     ws = Workspace(ws_path)
     shutil.copyfile(ws.gt_dir / "calibration.toml", ws.calibration)
     shutil.copyfile(ws.gt_dir / "timing.toml", ws.timing)
