@@ -61,7 +61,7 @@ def test_furniture_and_wall_hide_what_is_behind_them(room):
             break
     cam = sc.camera
     w, h = cam.size
-    assert np.isfinite(ren._static_depth).mean() > 0.5  # floor, wall and furniture below the wall top
+    assert np.isfinite(ren.render([])[0].depth).mean() > 0.5  # floor, wall and furniture below the wall top
     # a person-sized box 1 m behind a furniture pixel, on the same ray: that pixel stays furniture
     hit = np.flatnonzero(prim >= 0)
     X_n3 = ren.origin + ren.dirs[hit] * (tfar[hit] + 0.6)[:, None]
@@ -141,3 +141,49 @@ def test_identities_are_scored_per_frame(room_ws):
     r2 = frame_scores(ws, swapped, clocks)
     assert r2["switches"] == 1 and 0 < r2["wrong"] < 0.5 and r2["matched"] == pytest.approx(1 - r2["wrong"])
     assert r2["matched_per_person"][str(tid)] < 1.0
+
+
+def test_match_draws_who_is_who_in_each_camera(room_ws):
+    """`mamma-kit match` writes report/match/<cam>.png: the frame with the most tracks, each track's
+    pixels tinted in its person's colour (the picture differs from the video there, not elsewhere)."""
+    import cv2
+
+    from mamma_kit.cli.app import main
+    from mamma_kit.core.identities import read_identities
+    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.core.tracks import MaskTracks
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.matching.pictures import picture_frame
+    from mamma_kit.video.reader import VideoReader
+
+    ws = Workspace(room_ws)
+    for args in (["landmarks", str(room_ws), "--source", "gt"],
+                 ["match", str(room_ws), "--calibration", str(ws.gt_dir / "calibration.toml"),
+                  "--timing", str(ws.gt_dir / "timing.toml")]):
+        with pytest.raises(SystemExit) as e:
+            main(args + ["--quiet"])
+        assert e.value.code == 0
+    ident = read_identities(ws.identities)
+    clocks, _ = read_timing(ws.gt_dir / "timing.toml")
+    cap = ws.load_capture()
+    checked = 0
+    for c in cap.camera_names:
+        mt = MaskTracks.load(ws.mask_file(c))
+        pic = cv2.cvtColor(cv2.imread(str(ws.report_dir / "match" / f"{c}.png")), cv2.COLOR_BGR2RGB)
+        person_tk = ident.person_frames(c, mt.track_ids, clocks[c].to_ref(mt.frame_times))
+        t = picture_frame(mt, person_tk)
+        _, rgb = VideoReader(cap.cameras[c].video).frame_index(t)
+        up = pic.shape[0] // rgb.shape[0]
+        assert pic.shape[:2] == (rgb.shape[0] * up, rgb.shape[1] * up)
+        small = cv2.resize(pic, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_AREA).astype(int)
+        diff = np.abs(small - rgb.astype(int)).sum(-1)
+        people = np.zeros(rgb.shape[:2], bool)
+        for k in np.flatnonzero(mt.present[t] & (person_tk[t] >= 0)):
+            people |= cv2.erode(mt.mask(t, int(k)).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        if people.sum() > 20:
+            assert np.median(diff[people]) > 30  # tinted
+            far = cv2.dilate(people.astype(np.uint8), np.ones((9, 9), np.uint8)) == 0
+            far[-12:] = False  # the caption line
+            assert np.median(diff[far]) < 10  # the rest as the video shows it
+            checked += 1
+    assert checked >= 2

@@ -133,9 +133,10 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
         has = np.zeros(seen_tp.shape, bool)
         has[t_idx, on_tk[t_idx, k_idx]] = True
         n_tracked += int((has & seen_tp).sum())
-        for j, g in enumerate(e.gt_ids):
-            for p in cov[seen_tp[:, j] & (cov[:, j] >= 0), j]:
-                M[pids.index(int(p)), gts.index(int(g))] += 1
+        row = {p: i for i, p in enumerate(pids)}
+        t_s, j_s = np.nonzero(seen_tp & (cov >= 0))
+        np.add.at(M, (np.array([row[int(p)] for p in cov[t_s, j_s]], np.int64),
+                      np.array([gts.index(int(e.gt_ids[j])) for j in j_s], np.int64)), 1)
         cover[c] = cov
     r, ci = linear_sum_assignment(-M) if M.size else ([], [])
     to_gt = {pids[i]: gts[j] for i, j in zip(r, ci) if M[i, j] > 0}

@@ -64,17 +64,18 @@ def draw_identities(rgb_hw3: np.ndarray, mt: MaskTracks, t: int, person_k: np.nd
     return img
 
 
-def write_identity_pictures(ws, ident: Identities, times_ref: dict[str, np.ndarray], folder: Path) -> list[Path]:
-    """report/match/<cam>.png for every camera with tracks (times_ref: camera -> reference time of
-    each of its mask frames)."""
+def write_identity_pictures(ws, ident: Identities, masks: dict[str, MaskTracks], times_ref: dict[str, np.ndarray],
+                            folder: Path) -> list[Path]:
+    """report/match/<cam>.png for every camera with mask tracks (masks: camera -> its tracks;
+    times_ref: camera -> reference time of each of its mask frames)."""
     from mamma_kit.video.reader import VideoReader
 
     cap = ws.load_capture()
     out = []
     for c in ident.cameras:
-        if not ws.mask_file(c).is_file() or c not in times_ref:
+        if c not in masks or c not in times_ref:
             continue
-        mt = MaskTracks.load(ws.mask_file(c))
+        mt = masks[c]
         person_tk = ident.person_frames(c, mt.track_ids, times_ref[c])
         t = picture_frame(mt, person_tk)
         reasons = {int(u["track"]): u["reason"] for u in ident.unassigned if u["camera"] == c}

@@ -90,4 +90,4 @@ def identity_pictures(ws, ident, cams: list[str], timing: Path | None) -> list[P
     if not masks:
         return []
     times, _ = camera_times(ws, list(masks), masks, timing)
-    return write_identity_pictures(ws, ident, times, ws.report_dir / "match")
+    return write_identity_pictures(ws, ident, masks, times, ws.report_dir / "match")

@@ -355,7 +355,8 @@ def select_chains(chains: list[Chain], period: float, s: WindowSettings, n_frame
     ranked = sorted(chains, key=lambda ch: (-ch.multiview_frames, -len(ch.views()), min(ch.windows)))
     need = max(1, min(int(round(s.min_multiview_s / max(period, 1e-6))), max(2, n_frames // 6)))
     kept, dropped = [], []
-    peak = max((ch.peak_views() for ch in ranked if ch.multiview_frames >= need), default=0)
+    peaks = {id(ch): ch.peak_views() for ch in ranked}
+    peak = max((peaks[id(ch)] for ch in ranked if ch.multiview_frames >= need), default=0)
     min_views = max(2, int(np.ceil(s.min_view_share * peak - 1e-9)))
     for ch in ranked:
         views = sorted(ch.views())
@@ -364,8 +365,8 @@ def select_chains(chains: list[Chain], period: float, s: WindowSettings, n_frame
             why = f"seen by {views[0] + ' only' if views else 'no camera'}"
         elif ch.multiview_frames < need:
             why = f"seen by two or more cameras at once in {ch.multiview_frames} frames only (< {s.min_multiview_s} s)"
-        elif ch.peak_views() < min_views:
-            why = (f"seen by {ch.peak_views()} cameras at once at most, the best-seen person by {peak}: outside the "
+        elif peaks[id(ch)] < min_views:
+            why = (f"seen by {peaks[id(ch)]} cameras at once at most, the best-seen person by {peak}: outside the "
                    "cameras' common view (a bystander)")
         elif any(same_place(ch, k) for k in kept):
             pid = next(i for i, k in enumerate(kept) if same_place(ch, k))
