@@ -79,6 +79,31 @@ def test_furniture_and_wall_hide_what_is_behind_them(room):
     assert (fr3.instance == 0).any()
 
 
+def test_a_person_at_the_camera_is_drawn(room):
+    """A body beside or at the camera (someone walking past it in a small room) covers every pixel
+    whose ray meets it, though the lens model's pixels of its far-off-axis parts are meaningless
+    (this rig's barrel distortion folds them back into the frame) or undefined (behind the lens)."""
+    import trimesh
+
+    from mamma_kit.synth.render import PeopleScene
+
+    _, cams, scene = room
+    cam = cams[0].camera
+    ren = CameraRenderer(cam, scene.env)
+    static_depth = ren.render([])[0].depth.ravel()
+    # (sideways, ahead) in metres in the camera frame, for a box 0.6 m wide, 1.2 m tall, 0.6 m deep
+    for side_m, ahead_m in ((0.0, 0.0), (0.0, 0.3), (0.9, 0.6), (-0.7, 0.4), (0.5, 1.2)):
+        T_cam_box = np.eye(4)
+        T_cam_box[:3, 3] = [side_m, 0.0, ahead_m]
+        box = trimesh.creation.box(extents=[0.6, 1.2, 0.6], transform=cam.T_world_cam @ T_cam_box)
+        body = PersonMesh(np.asarray(box.vertices, float), np.asarray(box.faces), np.full((8, 3), 0.5))
+        fr, _ = ren.render([body])
+        prim, tfar, _, _ = PeopleScene([body]).cast(ren.origin, ren.dirs)  # every pixel's ray
+        expected = (prim >= 0) & (tfar * ren.cos_z < static_depth)
+        assert expected.sum() > 50, (side_m, ahead_m)
+        assert np.array_equal(fr.instance.ravel() == 0, expected), (side_m, ahead_m)
+
+
 def test_room_fields_are_checked(tmp_path):
     import tomli_w
 

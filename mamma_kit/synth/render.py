@@ -176,6 +176,7 @@ class CameraRenderer:
         self.dirs = dirs  # (H*W, 3) unit world directions
         self.zdir = camera.R[2]  # optical axis in world: depth = t * (d . zdir)
         self.cos_z = dirs @ self.zdir
+        self.ray_n2 = (dirs @ camera.R.T)[:, :2] / self.cos_z[:, None]  # each pixel's ray on the z = 1 plane
         self.props = PeopleScene(env.props) if env.props else None
         # the static part of the image (floor + background), shaded once without people
         self._static_rgb, self._static_depth = self._shade_static(np.arange(len(dirs)), np.zeros((0, 2)))
@@ -267,21 +268,23 @@ class CameraRenderer:
         return Frame(img8, inst.reshape(h, w), depth.reshape(h, w).astype(np.float32)), vis
 
     def _people_pixels(self, people: list[PersonMesh]) -> np.ndarray:
-        """Indices of pixels inside the (padded) projected boxes of all people."""
-        w, h = self.camera.size
-        mask = np.zeros((h, w), bool)
+        """Indices of pixels whose rays pass through the (padded) boxes of all people, the boxes
+        taken on the camera's undistorted image plane: a lens model's pixels are only defined
+        inside its field of view, and a body beside or at the camera reaches far outside it."""
+        cam = self.camera
+        mask = np.zeros(len(self.dirs), bool)
+        pad_n = 4.0 / min(cam.K[0, 0], cam.K[1, 1])  # four pixels on the image plane
         for p in people:
-            uv = self.camera.project(p.verts[:: max(1, len(p.verts) // 3000)])
-            uv = uv[np.isfinite(uv).all(1)]
-            if not len(uv):
+            Xc_n3 = (p.verts[:: max(1, len(p.verts) // 3000)] - cam.center) @ cam.R.T
+            if (Xc_n3[:, 2] <= 0).all():
                 continue
-            pad = 0.08 * max(np.ptp(uv[:, 0]), np.ptp(uv[:, 1])) + 4
-            x0, y0 = np.floor(uv.min(0) - pad).astype(int)
-            x1, y1 = np.ceil(uv.max(0) + pad).astype(int)
-            x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
-            if x1 > x0 and y1 > y0:
-                mask[y0:y1, x0:x1] = True
-        return np.flatnonzero(mask.ravel())
+            if (Xc_n3[:, 2] <= 1e-3).any():  # part of the body at or behind the lens: any ray may hit it
+                return np.arange(len(self.dirs))
+            xy_n2 = Xc_n3[:, :2] / Xc_n3[:, 2:]
+            lo, hi = xy_n2.min(0), xy_n2.max(0)
+            pad = 0.08 * (hi - lo).max() + pad_n
+            mask |= ((self.ray_n2 >= lo - pad) & (self.ray_n2 <= hi + pad)).all(1)
+        return np.flatnonzero(mask)
 
     def _cast_people(self, scene: "PeopleScene", idx, rgb, depth, inst) -> None:
         prim, tfar, u, v = scene.cast(self.origin, self.dirs[idx])
