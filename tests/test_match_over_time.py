@@ -5,6 +5,7 @@ one camera or beyond --people is set aside with its reason, and the fit reads th
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from conftest import landmark_view, make_ring_rig, walking_people
 from mamma_kit.core.identities import Identities, read_identities, write_identities
@@ -129,3 +130,54 @@ def test_a_bystander_seen_by_fewer_cameras_than_the_capture_people_is_set_aside(
     kept, _ = select_chains([chain(["a", "b", "c"]), chain(["a", "b", "c"]), chain(["b", "c", "d"])], 0.1,
                             WindowSettings(), 200)
     assert len(kept) == 3
+
+
+def test_a_take_read_from_its_files_a_window_at_a_time_gives_the_same_identities(tmp_path):
+    """`mamma-kit match` streams each view's landmarks from landmarks/<cam>.npz a window at a time
+    (matching.sources): the identities are those of the same views held in memory, a jump placed
+    on the same frame."""
+    from mamma_kit.core.calibfile import write_calibration
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.matching.match import workspace_views
+
+    rig, X, times, _ = take(P=2, T=60, seed=4)
+
+    def swap(cam, lt):
+        if cam == "cam2":
+            lt.xy[33:] = lt.xy[33:, ::-1].copy()
+
+    (tmp_path / "ws").mkdir()
+    ws = Workspace(tmp_path / "ws")
+    ws.landmarks_dir.mkdir(parents=True)
+    lts = {}
+    for c in rig:
+        lt = landmark_view(c, X, times)
+        lts[c.name] = swap(c.name, lt) or lt
+        lts[c.name].save(ws.landmarks_file(c.name))
+    write_calibration(ws.calibration, rig)
+    settings = MatchSettings()
+    streamed, _, how = workspace_views(ws, [c.name for c in rig], None, None, settings)
+    assert how == "frame index"
+    in_memory = [ViewTracks.from_landmarks(lts[c.name], c, np.arange(len(times), dtype=float)) for c in rig]
+    a = match_take(streamed, None, settings, WindowSettings(window_s=10.0))  # frame index: ten frames
+    b = match_take(in_memory, None, settings, WindowSettings(window_s=10.0))
+    assert a.assignments == b.assignments and a.segments == b.segments and a.track_frames == b.track_frames
+    assert {t for t, *_ in a.segments["cam2"]} == {0, 1}
+
+
+def test_rows_of_an_npz_are_read_in_any_order(tmp_path):
+    from mamma_kit.core.errors import UserError
+    from mamma_kit.core.io import NpzRows, write_npz
+
+    rng = np.random.default_rng(0)
+    arrays = {"xy": rng.normal(size=(90, 3, 7, 2)).astype(np.float32), "valid": rng.random((90, 3)) > 0.5,
+              "f": np.asfortranarray(rng.normal(size=(90, 4)))}  # Fortran order: read whole
+    path = write_npz(tmp_path / "a.npz", **arrays)
+    with NpzRows(path, tuple(arrays)) as rows:
+        assert rows.n_rows == 90
+        for a, b in [(0, 10), (5, 20), (40, 52), (50, 61), (3, 4), (85, 200), (0, 90)]:
+            got = rows.rows(a, b)
+            for k, v in arrays.items():
+                assert np.array_equal(got[k], v[a:b]), (k, a, b)
+    with pytest.raises(UserError, match="missing"):
+        NpzRows(path, ("xy", "sigma"))

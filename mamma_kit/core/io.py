@@ -146,6 +146,118 @@ def read_npz(path: str | os.PathLike, what: str = "array file", keys: tuple[str,
         raise UserError(f"{what} {p} is corrupt or truncated ({e})", "regenerate it") from None
 
 
+class NpzRows:
+    """Rows (along the first axis: frames) of some arrays of an .npz, read in order without holding
+    the whole arrays: each member is decompressed as a stream, and only the rows last asked for are
+    kept, so a long take's per-frame arrays cost memory in proportion to the rows asked for at once.
+
+    ``rows(start, stop)`` -> {key: array (stop - start, ...)}. Ask in increasing order; asking again
+    for rows at or after the last block's start is cheap, asking further back reads the members
+    again from their start. Members numpy does not store as plain C-order rows (Fortran order,
+    object arrays, unknown header versions) are read whole instead."""
+
+    def __init__(self, path: str | os.PathLike, keys: tuple[str, ...], what: str = "array file"):
+        import zipfile
+
+        self.path, self.keys, self.what = Path(path), tuple(keys), what
+        if not self.path.is_file():
+            raise UserError(f"{what} not found: {self.path}", "run the stage that writes it first")
+        try:
+            self._zip = zipfile.ZipFile(self.path)
+        except (OSError, zipfile.BadZipFile) as e:
+            raise UserError(f"{what} {self.path} is not a readable .npz ({e})", "regenerate it") from None
+        names = set(self._zip.namelist())
+        missing = [k for k in self.keys if f"{k}.npy" not in names]
+        if missing:
+            raise UserError(f"{self.path.name} is missing {', '.join(missing)} (not a mamma-kit file or too old)",
+                            "run the stage that writes it again")
+        self._stream: dict[str, Any] = {}
+        self._whole: dict[str, np.ndarray] = {}
+        self.shape: dict[str, tuple[int, ...]] = {}
+        self.dtype: dict[str, np.dtype] = {}
+        for k in self.keys:
+            self._open(k)
+        lengths = {s[0] if s else 0 for s in self.shape.values()}
+        if len(lengths) != 1:
+            raise UserError(f"{what} {self.path} holds arrays of different lengths", "regenerate it")
+        self.n_rows = lengths.pop() if lengths else 0
+        self._pos = 0  # the row every stream is at
+        self._start = 0  # the first row of the block kept
+        self._block: dict[str, np.ndarray] = {k: self._empty(k) for k in self.keys}
+
+    def _open(self, k: str) -> None:
+        f = self._zip.open(f"{k}.npy")
+        version = np.lib.format.read_magic(f)
+        readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+        plain = False
+        if version in readers:
+            shape, fortran, dtype = readers[version](f)
+            plain = not fortran and not dtype.hasobject and len(shape) >= 1
+        if not plain:  # read whole, as np.load would
+            f.close()
+            with self._zip.open(f"{k}.npy") as g:
+                a = np.lib.format.read_array(g, allow_pickle=False)
+            self._whole[k] = a
+            shape, dtype = a.shape, a.dtype
+        else:
+            self._stream[k] = f
+        self.shape[k], self.dtype[k] = tuple(shape), np.dtype(dtype)
+
+    def _empty(self, k: str) -> np.ndarray:
+        return np.zeros((0, *self.shape[k][1:]), self.dtype[k])
+
+    def _row_bytes(self, k: str) -> int:
+        return int(np.prod(self.shape[k][1:], dtype=np.int64)) * self.dtype[k].itemsize
+
+    def _read(self, k: str, n: int) -> np.ndarray:
+        nbytes = n * self._row_bytes(k)
+        buf = self._stream[k].read(nbytes)
+        if len(buf) != nbytes:
+            raise UserError(f"{self.what} {self.path} is corrupt or truncated", "regenerate it")
+        return np.frombuffer(buf, self.dtype[k]).reshape(n, *self.shape[k][1:])
+
+    def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        start, stop = max(0, int(start)), min(self.n_rows, int(stop))
+        stop = max(start, stop)
+        if start < self._start:  # further back than the block kept: from the top again
+            for k in self._stream:
+                self._stream[k].close()
+                self._open(k)
+            self._pos = self._start = 0
+            self._block = {k: self._empty(k) for k in self.keys}
+        if start > self._pos:  # skip what nobody asked for, in bounded reads
+            for k in self._stream:
+                left = start - self._pos
+                step = max(1, (64 << 20) // max(self._row_bytes(k), 1))
+                while left > 0:
+                    self._read(k, min(step, left))
+                    left -= min(step, left)
+            self._pos = self._start = start
+            self._block = {k: self._empty(k) for k in self.keys}
+        new = max(0, stop - self._pos)
+        out = {}
+        for k in self.keys:
+            if k in self._whole:
+                out[k] = self._whole[k][start:stop]
+                continue
+            kept = self._block[k][start - self._start:]
+            out[k] = np.concatenate([kept, self._read(k, new)]) if new else kept[:stop - start]
+        self._pos = max(self._pos, stop)
+        self._start, self._block = start, out
+        return out
+
+    def close(self) -> None:
+        for f in self._stream.values():
+            f.close()
+        self._zip.close()
+
+    def __enter__(self) -> "NpzRows":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 

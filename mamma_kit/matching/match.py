@@ -37,10 +37,10 @@ from mamma_kit.core import log
 from mamma_kit.core.calibfile import read_calibration
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.identities import Identities
-from mamma_kit.core.tracks import LandmarkTracks
 from mamma_kit.core.workspace import Workspace
 from mamma_kit.matching.grouping import Node, group_tracks
 from mamma_kit.matching.pairs import ViewTracks, pair_distances
+from mamma_kit.matching.sources import ViewSource
 
 
 @dataclass
@@ -179,9 +179,11 @@ def _max_between(A, evidence, gid: dict[int, int]) -> float:
 
 
 # ---- workspace entry point ------------------------------------------------------------
-def camera_times(ws: Workspace, cams: list[str], lts: dict[str, LandmarkTracks], timing: Path | None) \
+def camera_times(ws: Workspace, cams: list[str], tracks: dict, timing: Path | None) \
         -> tuple[dict[str, np.ndarray], str]:
-    """Reference times of every camera's frames and how they were found."""
+    """Reference times of every camera's frames and how they were found (``tracks``: camera ->
+    its track file's frame times, or anything with ``frame_times``)."""
+    frame_times = {c: np.asarray(getattr(tracks[c], "frame_times", tracks[c]), np.float64) for c in cams}
     if timing is not None:
         from mamma_kit.core.timingfile import read_timing
 
@@ -190,17 +192,23 @@ def camera_times(ws: Workspace, cams: list[str], lts: dict[str, LandmarkTracks],
         if missing:
             raise UserError(f"{timing.name} has no clock for {', '.join(missing)}",
                             "run `mamma-kit sync WORKSPACE` again with every camera")
-        return {c: clocks[c].to_ref(lts[c].frame_times) for c in cams}, str(timing)
+        return {c: clocks[c].to_ref(frame_times[c]) for c in cams}, str(timing)
     log.warn("no timing.toml: pairing frames across cameras by frame index (run `mamma-kit sync` first "
              "for unsynchronised cameras)")
-    return {c: np.arange(len(lts[c].frame_times), dtype=np.float64) for c in cams}, "frame index"
+    return {c: np.arange(len(frame_times[c]), dtype=np.float64) for c in cams}, "frame index"
+
+
+HEADER_KEYS = ("camera", "image_size", "frame_times", "track_ids", "valid")
 
 
 def workspace_views(ws: Workspace, cameras: list[str] | None = None, calibration: Path | None = None,
                     timing: Path | None = None, settings: MatchSettings | None = None) \
-        -> tuple[list[ViewTracks], list[ViewTracks | None] | None, str]:
-    """The workspace's views ready for matching: landmark tracks, keypoint tracks (None where a
-    camera has none, or None for all) and how frames are paired in time."""
+        -> tuple[list[ViewSource], list[ViewSource | None] | None, str]:
+    """The workspace's views ready for matching, read from their files a window at a time: landmark
+    tracks, keypoint tracks (None where a camera has none, or None for all) and how frames are
+    paired in time."""
+    from mamma_kit.core.io import read_npz
+
     calib = calibration or ws.calibration
     if not Path(calib).is_file():
         raise UserError(f"no calibration at {calib}", "run `mamma-kit calibrate WORKSPACE` (or pass --calibration)")
@@ -218,29 +226,35 @@ def workspace_views(ws: Workspace, cameras: list[str] | None = None, calibration
                         "calibrate every camera of the capture, or pass --cameras")
     if len(cameras) < 2:
         raise UserError("matching needs at least two cameras", "pass two or more with --cameras")
-    lts = {c: LandmarkTracks.load(ws.landmarks_file(c)) for c in cameras}
+    heads = {c: read_npz(ws.landmarks_file(c), "landmark file", keys=HEADER_KEYS) for c in cameras}
+    for c, h in heads.items():
+        if any(k not in h for k in HEADER_KEYS[1:]):
+            raise UserError(f"{ws.landmarks_file(c).name} is not a landmark file (no frame_times, track_ids or valid)",
+                            "run `mamma-kit landmarks WORKSPACE` again")
     if timing is None and ws.timing.is_file():
         timing = ws.timing
-    times, how = camera_times(ws, cameras, lts, Path(timing) if timing else None)
+    times, how = camera_times(ws, cameras, {c: h["frame_times"] for c, h in heads.items()},
+                              Path(timing) if timing else None)
     s = settings or MatchSettings()
-    views = [ViewTracks.from_landmarks(lts[c], _camera_for(rig[c], lts[c].image_size), times[c], s.vis_threshold)
-             for c in cameras]
-    kp_views = keypoint_views(ws, cameras, lts, rig, times, s) if s.use_keypoints else None
+    views = [ViewSource.from_file(ws.landmarks_file(c), "landmark file", _camera_for(rig[c], heads[c]["image_size"]),
+                                  times[c], heads[c], s.vis_threshold) for c in cameras]
+    kp_views = keypoint_views(ws, cameras, heads, rig, times, s) if s.use_keypoints else None
     return views, kp_views, how
 
 
-def keypoint_views(ws: Workspace, cameras: list[str], lts: dict[str, LandmarkTracks], rig, times,
-                   s: MatchSettings) -> list[ViewTracks | None] | None:
+def keypoint_views(ws: Workspace, cameras: list[str], heads: dict[str, dict], rig, times,
+                   s: MatchSettings) -> list[ViewSource | None] | None:
     """The cameras' keypoint tracks where keypoints/<cam>.npz exists for the same tracks, else None."""
-    from mamma_kit.core.tracks import KeypointTracks
+    from mamma_kit.core.io import read_npz
 
     out = []
     for c in cameras:
-        kt = KeypointTracks.load(ws.keypoints_file(c)) if ws.keypoints_file(c).is_file() else None
-        same = kt is not None and np.array_equal(kt.track_ids, lts[c].track_ids) and \
-            len(kt.frame_times) == len(lts[c].frame_times)
-        out.append(ViewTracks.from_keypoints(kt, _camera_for(rig[c], kt.image_size), times[c], s.vis_threshold)
-                   if same else None)
+        path = ws.keypoints_file(c)
+        kh = read_npz(path, "keypoint file", keys=HEADER_KEYS) if path.is_file() else None
+        same = kh is not None and "track_ids" in kh and "frame_times" in kh and \
+            np.array_equal(kh["track_ids"], heads[c]["track_ids"]) and len(kh["frame_times"]) == len(heads[c]["frame_times"])
+        out.append(ViewSource.from_file(path, "keypoint file", _camera_for(rig[c], kh["image_size"]), times[c], kh,
+                                        s.vis_threshold) if same else None)
     return out if any(v is not None for v in out) else None
 
 

@@ -49,19 +49,22 @@ class ViewTracks:
     def from_keypoints(cls, kt, camera: Camera, times_ref: np.ndarray, vis_threshold: float = 0.5,
                        min_height_px: float = 8.0) -> "ViewTracks":
         """From a core.tracks.KeypointTracks (the keypoint model's 33 points per track), like landmarks."""
-        return cls._build(kt.camera, kt.track_ids, kt.xy, kt.valid, kt.visibility, camera, times_ref, vis_threshold,
+        return cls.from_arrays(kt.camera, kt.track_ids, kt.xy, kt.valid, kt.visibility, camera, times_ref, vis_threshold,
                           min_height_px)
 
     @classmethod
     def from_landmarks(cls, lt, camera: Camera, times_ref: np.ndarray, vis_threshold: float = 0.5,
                        min_height_px: float = 8.0) -> "ViewTracks":
         """From a core.tracks.LandmarkTracks; pixels are undistorted with the camera's lens."""
-        return cls._build(lt.camera, lt.track_ids, lt.xy, lt.valid, lt.visibility, camera, times_ref, vis_threshold,
+        return cls.from_arrays(lt.camera, lt.track_ids, lt.xy, lt.valid, lt.visibility, camera, times_ref, vis_threshold,
                           min_height_px)
 
     @classmethod
-    def _build(cls, name, track_ids, xy_tkl2, valid_tk, vis_tkl, camera: Camera, times_ref, vis_threshold,
-               min_height_px) -> "ViewTracks":
+    def from_arrays(cls, name, track_ids, xy_tkl2, valid_tk, vis_tkl, camera: Camera, times_ref, vis_threshold,
+                    min_height_px, period: float | None = None) -> "ViewTracks":
+        """From a track file's raw arrays: xy (T, K, L, 2) recorded px, valid (T, K), visibility
+        (T, K, L); ``period``: the frame period (default: the median step of times_ref). Every
+        frame is built on its own, so the frames of a long take can be built a window at a time."""
         xy = np.asarray(xy_tkl2, np.float64)
         valid = np.asarray(valid_tk, bool) & np.isfinite(xy).all(-1).any(-1)
         finite = np.isfinite(xy).all(-1)
@@ -83,7 +86,8 @@ class ViewTracks:
                 height = np.nanmax(ys, -1) - np.nanmin(ys, -1)
         height = np.where(valid & np.isfinite(height), np.maximum(height, min_height_px), np.nan)
         times_ref = np.asarray(times_ref, np.float64)
-        period = float(np.median(np.diff(times_ref))) if len(times_ref) > 1 else 1.0
+        if period is None:
+            period = float(np.median(np.diff(times_ref))) if len(times_ref) > 1 else 1.0
         return cls(name, camera, times_ref, period, np.asarray(track_ids, np.int64), xy_und, vis, valid, height)
 
 

@@ -31,6 +31,7 @@ from scipy.optimize import linear_sum_assignment
 from mamma_kit.core.identities import Identities
 from mamma_kit.core.tracks import nearest_frames
 from mamma_kit.matching.pairs import ViewTracks
+from mamma_kit.matching.sources import ViewSource, take
 
 
 MIN_RUN = 3  # frames: a track's change of person shorter than this is undone (refine_frames)
@@ -88,23 +89,6 @@ class Chain:
             for k in m:
                 out.setdefault(k, set()).add(w)
         return out
-
-
-def slice_view(v: ViewTracks | None, lo: float, hi: float, track_ids: np.ndarray | None = None) \
-        -> ViewTracks | None:
-    """The view's frames with lo <= t < hi and the tracks present in them, or the given tracks
-    (a keypoint view sliced like its landmark view: matching pairs them column by column);
-    None if none."""
-    if v is None:
-        return None
-    f = np.flatnonzero((v.times_ref >= lo) & (v.times_ref < hi))
-    if not len(f):
-        return None
-    keep = np.flatnonzero(v.valid_tk[f].any(0) if track_ids is None else np.isin(v.track_ids, track_ids))
-    if not len(keep):
-        return None
-    return ViewTracks(v.name, v.camera, v.times_ref[f], v.period, v.track_ids[keep],
-                      v.xy_tkl2[f][:, keep], v.vis_tkl[f][:, keep], v.valid_tk[f][:, keep], v.height_tk[f][:, keep])
 
 
 def window_persons(ident: Identities, views: list[ViewTracks]) -> list[dict[tuple[str, int], int]]:
@@ -233,18 +217,12 @@ class TrackGeometry:
     """Per (camera, track): its frames' reference times, presence and the centroid of its
     visible points (undistorted px), to tell whether two tracks co-exist and where a chain is."""
 
-    def __init__(self, views: list[ViewTracks], edges: np.ndarray):
+    def __init__(self, views: list[ViewSource], edges: np.ndarray):
         self.views = {v.name: v for v in views}
         self.window_of = {v.name: np.searchsorted(edges, v.times_ref, side="right") - 1 for v in views}
         self._positions: dict = {}
         self.col = {(v.name, int(t)): k for v in views for k, t in enumerate(v.track_ids)}
-        self.centroid = {}
-        for v in views:
-            with np.errstate(invalid="ignore"):
-                xy = np.where(v.vis_tkl[..., None], v.xy_tkl2, np.nan)
-                n = np.isfinite(xy[..., 0]).sum(-1)
-                c = np.nansum(np.nan_to_num(xy), -2) / np.maximum(n, 1)[..., None]
-            self.centroid[v.name] = np.where((n > 0)[..., None], c, np.nan)
+        self.centroid = {v.name: v.centroid_tk2 for v in views}
 
     def coexist(self, a: tuple[str, int], wins_a, b: tuple[str, int], wins_b, handover_s: float = 1.0) -> bool:
         """Two tracks of one view, each in the given windows, show two people: they share more
@@ -399,61 +377,92 @@ def person_arrays(kept: list[Chain], views: list[ViewTracks], edges: np.ndarray)
     return out
 
 
-def refine_frames(person: dict[str, np.ndarray], views: list[ViewTracks], accept: float, reject: float) \
-        -> dict[str, np.ndarray]:
+def refine_frames(person: dict[str, np.ndarray], views: list[ViewSource], edges: np.ndarray, accept: float,
+                  reject: float) -> dict[str, np.ndarray]:
     """Frame by frame, each track against the other views' tracks of each person at that
     instant (median epipolar distance over those views, person heights): a frame whose person
     the other views disagree with (> ``reject``) goes to the person they agree with (< ``accept``)
     if no other track of the view holds that person then, else to no one; an unassigned frame the
     other views agree with joins that person. The windows' chaining decides who is who; this
-    places the switch of a track that jumps within a window on its frame."""
-    from mamma_kit.matching.pairs import frame_distances
-
+    places the switch of a track that jumps within a window on its frame. One window of frames
+    is read at a time (the other views a frame beyond it on each side, for the instants they
+    share); a change shorter than MIN_RUN frames is then undone over the whole take."""
     P = 1 + max((int(a.max()) for a in person.values() if a.size), default=-1)
     if P == 0:
         return person
     out = {n: a.copy() for n, a in person.items()}
-    for a in views:
-        per_p = np.full((P, len(views) - 1, *a.valid_tk.shape), np.nan)  # (P, B, T, K)
-        others = [b for b in views if b is not a]
-        for bi, b in enumerate(others):
-            D = frame_distances(a, b)  # (T, Ka, Kb)
-            g = nearest_frames(a.times_ref, b.times_ref, 0.5 * b.period)
-            pb = np.where((g >= 0)[:, None], person[b.name][np.maximum(g, 0)], -1)  # (T, Kb)
-            for p in range(P):
-                hold = pb == p  # (T, Kb)
-                with np.errstate(invalid="ignore"):
-                    d = np.where(hold[:, None, :], D, np.nan)
-                    per_p[p, bi] = np.where(hold.any(1)[:, None], np.nanmin(np.nan_to_num(d, nan=np.inf), -1), np.nan)
-        per_p[~np.isfinite(per_p)] = np.nan
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            Dp = np.nanmedian(per_p, axis=1)  # (P, T, K)
-        cur = person[a.name]
-        new = out[a.name]
-        T, K = cur.shape
-        best = np.nanargmin(np.where(np.isnan(Dp), np.inf, Dp), axis=0)  # (T, K)
-        best_d = np.take_along_axis(np.where(np.isnan(Dp), np.inf, Dp), best[None], 0)[0]
-        own_d = np.where(cur >= 0, np.take_along_axis(np.where(np.isnan(Dp), np.nan, Dp),
-                                                      np.maximum(cur, 0)[None], 0)[0], np.nan)
-        for t, k in zip(*np.nonzero(a.valid_tk)):
-            p, q = cur[t, k], int(best[t, k])
-            if p >= 0 and not own_d[t, k] > reject:
-                continue  # the other views agree (or none sees the person now)
-            if best_d[t, k] < accept and q != p and not (new[t] == q).any():
-                new[t, k] = q
-            elif p >= 0:
-                new[t, k] = -1
-        # a change shorter than MIN_RUN frames is one frame's noise, not a jump: undone
-        for k in range(K):
-            f = np.flatnonzero(a.valid_tk[:, k])
-            changed = new[f, k] != cur[f, k]
-            if not changed.any():
+    for w in range(len(edges) - 1):
+        lo, hi = edges[w], edges[w + 1]
+        wide = {v.name: v.window(lo - 1.5 * v.period, hi + 1.5 * v.period) for v in views}
+        index = {v.name: v for v in views}
+        for a in views:
+            va = wide[a.name]
+            if va is None:
                 continue
-            for run in np.split(np.arange(len(f)), np.flatnonzero(np.diff(new[f, k]) != 0) + 1):
-                if changed[run].any() and len(run) < MIN_RUN:
-                    new[f[run], k] = cur[f[run], k]
+            inside = np.flatnonzero((va.times_ref >= lo) & (va.times_ref < hi))
+            if not len(inside):
+                continue
+            f0 = int(np.searchsorted(a.times_ref, va.times_ref[inside[0]]))
+            frames = f0 + np.arange(len(inside))  # the take's frame of each of the window's frames
+            cols = np.searchsorted(a.track_ids, va.track_ids) if np.all(np.diff(a.track_ids) > 0) else \
+                np.array([int(np.flatnonzero(a.track_ids == t)[0]) for t in va.track_ids])
+            others = [(wide[b.name], index[b.name]) for b in views if b is not a and wide[b.name] is not None]
+            reassign_frames(take(va, inside), frames, cols, others, person, out[a.name], P, accept, reject)
+    for a in views:
+        undo_short_changes(person[a.name], out[a.name], a.valid_tk)
     return out
+
+
+def reassign_frames(va: ViewTracks, frames: np.ndarray, cols: np.ndarray, others: list[tuple[ViewTracks, ViewSource]],
+                    person: dict[str, np.ndarray], new_tk: np.ndarray, P: int, accept: float, reject: float) -> None:
+    """refine_frames' decision for one view's window ``va`` (its frames and columns in the take:
+    ``frames``, ``cols``) against the other views' windows; writes into ``new_tk`` (T, K)."""
+    from mamma_kit.matching.pairs import frame_distances
+
+    cur_all = person[va.name]
+    per_p = np.full((P, max(1, len(others)), *va.valid_tk.shape), np.nan)  # (P, B, F, Kw)
+    for bi, (vb, b) in enumerate(others):
+        D = frame_distances(va, vb)  # (F, Ka, Kb)
+        g = nearest_frames(va.times_ref, vb.times_ref, 0.5 * vb.period)
+        fb = np.searchsorted(b.times_ref, vb.times_ref[0]) + np.maximum(g, 0)  # the take's frames of b
+        cb = np.array([int(np.flatnonzero(b.track_ids == t)[0]) for t in vb.track_ids], np.int64)
+        pb = np.where((g >= 0)[:, None], person[b.name][fb][:, cb], -1)  # (F, Kb)
+        for p in range(P):
+            hold = pb == p  # (F, Kb)
+            with np.errstate(invalid="ignore"):
+                d = np.where(hold[:, None, :], D, np.nan)
+                per_p[p, bi] = np.where(hold.any(1)[:, None], np.nanmin(np.nan_to_num(d, nan=np.inf), -1), np.nan)
+    per_p[~np.isfinite(per_p)] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        Dp = np.nanmedian(per_p, axis=1)  # (P, F, Kw)
+    cur = cur_all[frames][:, cols]
+    Dinf = np.where(np.isnan(Dp), np.inf, Dp)
+    best = np.argmin(Dinf, axis=0)  # (F, Kw)
+    best_d = np.take_along_axis(Dinf, best[None], 0)[0]
+    own_d = np.where(cur >= 0, np.take_along_axis(Dp, np.maximum(cur, 0)[None], 0)[0], np.nan)
+    for t, k in zip(*np.nonzero(va.valid_tk)):
+        p, q = cur[t, k], int(best[t, k])
+        if p >= 0 and not own_d[t, k] > reject:
+            continue  # the other views agree (or none sees the person now)
+        T, K = frames[t], cols[k]
+        if best_d[t, k] < accept and q != p and not (new_tk[T] == q).any():
+            new_tk[T, K] = q
+        elif p >= 0:
+            new_tk[T, K] = -1
+
+
+def undo_short_changes(cur_tk: np.ndarray, new_tk: np.ndarray, valid_tk: np.ndarray) -> None:
+    """A change of person shorter than MIN_RUN of a track's frames is one frame's noise, not a
+    jump: undone in ``new_tk``."""
+    for k in range(cur_tk.shape[1]):
+        f = np.flatnonzero(valid_tk[:, k])
+        changed = new_tk[f, k] != cur_tk[f, k]
+        if not changed.any():
+            continue
+        for run in np.split(np.arange(len(f)), np.flatnonzero(np.diff(new_tk[f, k]) != 0) + 1):
+            if changed[run].any() and len(run) < MIN_RUN:
+                new_tk[f[run], k] = cur_tk[f[run], k]
 
 
 def identities_from_person(person: dict[str, np.ndarray], views: list[ViewTracks]) -> \
@@ -529,15 +538,20 @@ def merge_pairs(window_pairs: list[dict]) -> dict:
     return out
 
 
-def match_take(views: list[ViewTracks], kp_views: list[ViewTracks | None] | None, settings=None,
-               ws: WindowSettings | None = None) -> Identities:
-    """Identities of the whole take (see module doc)."""
+def match_take(views: list[ViewTracks | ViewSource], kp_views: list[ViewTracks | ViewSource | None] | None,
+               settings=None, ws: WindowSettings | None = None) -> Identities:
+    """Identities of the whole take (see module doc). ``views``: each camera's landmark tracks,
+    in memory or as sources read a window at a time (matching.sources); ``kp_views``: its keypoint
+    tracks where the same tracks have them."""
     from dataclasses import asdict
 
     from mamma_kit.matching.match import MatchSettings, match_views
 
     s = settings or MatchSettings()
     w_s = ws or WindowSettings()
+    views = [v if isinstance(v, ViewSource) else ViewSource.in_memory(v) for v in views]
+    if kp_views is not None:
+        kp_views = [k if k is None or isinstance(k, ViewSource) else ViewSource.in_memory(k) for k in kp_views]
     names = [v.name for v in views]
     t_all = np.concatenate([v.times_ref[v.valid_tk.any(1)] for v in views] + [np.zeros(0)])
     t_lo = float(t_all.min()) if len(t_all) else 0.0
@@ -547,12 +561,13 @@ def match_take(views: list[ViewTracks], kp_views: list[ViewTracks | None] | None
     edges[-1] = np.inf
     per_window, window_pairs, rejected = [], [], []
     for w in range(n_win):
-        vs = [slice_view(v, edges[w], edges[w + 1]) for v in views]
+        vs = [v.window(edges[w], edges[w + 1]) for v in views]
         here = [i for i, v in enumerate(vs) if v is not None]
         if len(here) >= 2:
             kw = None
             if kp_views is not None:
-                kw = [slice_view(kp_views[i], edges[w], edges[w + 1], vs[i].track_ids) for i in here]
+                kw = [kp_views[i].window(edges[w], edges[w + 1], vs[i].track_ids) if kp_views[i] is not None else None
+                      for i in here]
                 kw = [k if k is not None and np.array_equal(k.track_ids, vs[i].track_ids) else None
                       for k, i in zip(kw, here)]
                 kw = kw if any(k is not None for k in kw) else None
@@ -574,7 +589,8 @@ def match_take(views: list[ViewTracks], kp_views: list[ViewTracks | None] | None
     if w_s.refine:
         dist_views = [k if kp_views is not None and k is not None and np.array_equal(k.track_ids, v.track_ids) else v
                       for v, k in zip(views, kp_views or [None] * len(views))]
-        person = refine_frames(person, dist_views, accept=_distance_at(s.min_affinity, s.lam), reject=w_s.refine_reject)
+        person = refine_frames(person, dist_views, edges, accept=_distance_at(s.min_affinity, s.lam),
+                               reject=w_s.refine_reject)
     assignments, segments, frames = identities_from_person(person, views)
     assigned = {(c, t) for c, m in assignments.items() for t in m}
     unassigned = [{"camera": v.name, "track": int(t), "reason": "no frame with landmarks"}
