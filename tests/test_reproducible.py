@@ -199,3 +199,21 @@ def test_configure_leaves_every_blas_on_one_thread():
     assert blas and all(p["num_threads"] == 1 for p in blas), blas
     assert torch.are_deterministic_algorithms_enabled()
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+
+
+def test_torch_imported_after_configure_is_deterministic_and_match_does_not_import_it(tmp_path):
+    """configure() sets torch up when something first imports it: a stage that never computes with
+    torch (match) does not pay its import, and one that does gets deterministic kernels all the same."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from mamma_kit.core.reproducible import configure, runtime_record\n"
+            "configure(); runtime_record()\n"
+            "import mamma_kit.matching.stage, mamma_kit.matching.windows, mamma_kit.core.manifest\n"
+            "assert 'torch' not in sys.modules, 'torch imported by the match stage'\n"
+            "import torch, importlib.resources\n"
+            "assert torch.are_deterministic_algorithms_enabled()\n"
+            "assert importlib.resources.files('torch').is_dir()\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]

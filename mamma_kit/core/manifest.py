@@ -158,7 +158,7 @@ def runtime_change(before: dict | None, now: dict) -> str | None:
     """Why a result made under ``before`` (a manifest's runtime) may differ from one made now, or None."""
     if not before:
         return "made before manifests recorded library versions"
-    for key in ("machine", "torch_cpu"):
+    for key in ("machine", "cpu_vector"):
         if before.get(key) != now.get(key):
             return f"made on {key} {before.get(key)}, now {now.get(key)}"
     old_p, new_p = before.get("packages", {}), now.get("packages", {})

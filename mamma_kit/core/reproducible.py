@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import os
 import platform
+import sys
 from contextlib import contextmanager
 from functools import lru_cache
 from typing import Iterator
@@ -43,13 +44,55 @@ def configure() -> None:
         threadpool_limits(1, user_api="blas")  # the OpenBLAS copies loaded already
     except ImportError:  # pragma: no cover - a dependency
         pass
-    try:
-        import torch
-
-        torch.use_deterministic_algorithms(True)
-    except ImportError:  # pragma: no cover - torch is a dependency
-        pass
+    # torch costs a process 300 MB and 3 s to import: a stage that never computes with it (match,
+    # sync, calibrate) should not pay that, so torch is set up when something first imports it
+    if "torch" in sys.modules:
+        _deterministic_torch(sys.modules["torch"])
+    else:
+        sys.meta_path.insert(0, _AfterImport("torch", _deterministic_torch))
     _done["process"] = True
+
+
+def _deterministic_torch(torch) -> None:
+    torch.use_deterministic_algorithms(True)
+
+
+class _AfterImport:
+    """A finder that runs ``then(module)`` once the module ``name`` has been executed (the first
+    import of it anywhere), then steps out of the import system."""
+
+    def __init__(self, name: str, then):
+        self.name, self.then = name, then
+
+    def find_spec(self, fullname, path=None, target=None):
+        if fullname != self.name:
+            return None
+        import importlib.util
+
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _ThenLoader(spec.loader, self.then)
+        return spec
+
+
+class _ThenLoader:
+    """A module's own loader, with a call after it executes the module (everything else is the
+    loader's: resource readers, get_code, ...)."""
+
+    def __init__(self, loader, then):
+        self._loader, self._then = loader, then
+
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        self._loader.exec_module(module)
+        self._then(module)
+
+    def __getattr__(self, name):
+        return getattr(self._loader, name)
 
 
 @contextmanager
@@ -94,23 +137,42 @@ def _runtime_record() -> dict:
 
     rec = {"mamma_kit": __version__, "python": platform.python_version(), "machine": platform.machine(),
            "packages": {p: v for p in NUMERIC_PACKAGES if (v := _version(p)) is not None}}
-    try:
-        import torch
-
-        rec["torch_cpu"] = torch.backends.cpu.get_cpu_capability()
-    except Exception:  # pragma: no cover
-        pass
+    rec["cpu_vector"] = cpu_vector()
     return rec
+
+
+def cpu_vector() -> str:
+    """The widest vector instructions the CPU offers of those torch, numpy and OpenCV dispatch on
+    (their kernels sum in another order on another width), read from /proc/cpuinfo so that a stage
+    that does not compute with torch need not import it; ATEN_CPU_CAPABILITY, torch's override, counts."""
+    flags: set[str] = set()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith(("flags", "Features")):
+                    flags = set(line.split(":", 1)[1].split())
+                    break
+    except OSError:
+        pass
+    if {"avx512f", "avx512bw", "avx512vl", "avx512dq"} <= flags:
+        width = "avx512"
+    elif {"avx2", "fma"} <= flags:
+        width = "avx2"
+    elif "sve" in flags:
+        width = "sve"
+    elif "asimd" in flags:
+        width = "neon"
+    else:
+        width = "default"
+    override = os.environ.get("ATEN_CPU_CAPABILITY")
+    return f"{width} (ATEN_CPU_CAPABILITY={override})" if override else width
 
 
 def threads_record() -> dict:
     """How this process computed (for the manifest's information; not part of what makes a stage fresh)."""
     out = {"cpus": os.cpu_count()}
-    try:
-        import torch
-
+    torch = sys.modules.get("torch")  # only where this process computes with it
+    if torch is not None:
         out["torch_threads"] = torch.get_num_threads()
         out["deterministic"] = torch.are_deterministic_algorithms_enabled()
-    except ImportError:  # pragma: no cover
-        pass
     return out
