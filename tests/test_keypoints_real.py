@@ -383,3 +383,20 @@ def test_without_a_head_count_the_views_agree_on_exactly_the_two_people(tmp_path
     assert [len(ident.views_of(p)) for p in ident.person_ids] == [4, 4]
     for u in ident.unassigned:  # whatever else a view tracked is set aside with its reason
         assert u["reason"]
+
+
+def test_of_two_tracks_on_one_body_the_one_that_was_elsewhere_gives_it_up():
+    """give_up: a person passing behind another, whose ROI found the front one, lets the body go
+    (their last mask lay elsewhere) even when their track is the older; a tie goes to the older."""
+    from mamma_kit.masks.pose import give_up
+
+    H, W = 120, 200
+    front = np.zeros((H, W), bool)
+    front[10:110, 80:120] = True
+    behind = np.zeros((H, W), bool)
+    behind[10:110, 20:60] = True  # the passer-by's last mask, left of the front person
+    crop = front[:, 70:130].copy()
+    own = (crop, (70, 0, 130, H))
+    assert give_up(3, own, 7, own, {3: behind, 7: front}) == 3  # track 3 is older, but was elsewhere
+    assert give_up(3, own, 7, own, {3: front, 7: behind}) == 7
+    assert give_up(3, own, 7, own, {}) == 7  # no history: the younger

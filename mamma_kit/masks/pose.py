@@ -339,8 +339,10 @@ class PoseBackend:
             order = sorted(got)
             masks, own = self._masks(res, np.array([got[i] for i in order], int), W, H)
             # two tracks on one body (two ROIs' skeletons that BlazePose placed apart on one person,
-            # e.g. one cut off by the frame's edge): the younger one gives the body up
-            drop = {max(tracks[order[a]].tid, tracks[order[b]].tid) for a, b in same_bodies(own)}
+            # e.g. one cut off by the frame's edge; or a person passing behind another, whose ROI
+            # finds the front one): the one whose body this is not gives it up
+            drop = {give_up(tracks[order[a]].tid, own[a], tracks[order[b]].tid, own[b], prev)
+                    for a, b in same_bodies(own)}
             if drop:
                 for i in [i for i in order if tracks[i].tid in drop]:
                     del got[i]
@@ -377,6 +379,26 @@ class PoseBackend:
         mt, chosen = keep_tracks(mt)
         summ.update({"detected_tracks": summ["tracks"], **track_summary(mt), "kept": chosen})
         return mt, summ
+
+
+def give_up(tid_a: int, own_a, tid_b: int, own_b, prev: dict[int, np.ndarray]) -> int:
+    """Of two tracks on one body (own: bool crop, (x0, y0, x1, y1) box), the one to give it up:
+    the one whose last mask (``prev``: track id -> full-frame mask) it overlaps less (by IoU), as
+    a person passing behind another has a small last mask elsewhere while the front one's last
+    mask is this body; the younger one where neither has a last mask or they tie."""
+    def iou(tid, own) -> float:
+        last = prev.get(tid)
+        if last is None or own is None:
+            return -1.0
+        m, (x0, y0, x1, y1) = own
+        inter = np.count_nonzero(last[y0:y1, x0:x1] & m)
+        union = np.count_nonzero(last) + np.count_nonzero(m) - inter
+        return inter / union if union else 0.0
+
+    ia, ib = iou(tid_a, own_a), iou(tid_b, own_b)
+    if abs(ia - ib) < 0.05:
+        return max(tid_a, tid_b)
+    return tid_a if ia < ib else tid_b
 
 
 def same_bodies(own: list) -> list[tuple[int, int]]:
