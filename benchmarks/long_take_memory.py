@@ -14,11 +14,7 @@ pictures (one video frame per camera) are left out: the looped workspaces have n
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -70,12 +66,9 @@ def make_workspace(src: Path, dst: Path, n: int) -> tuple[float, int]:
 
 
 def run_match(ws: Path) -> tuple[float, float]:
-    t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "mamma_kit", "match", str(ws), "--force", "--quiet", "--no-plots"])
-    _, status, usage = os.wait4(proc.pid, 0)
-    if os.waitstatus_to_exitcode(status):
-        raise RuntimeError(f"mamma-kit match {ws} failed")
-    return time.perf_counter() - t0, usage.ru_maxrss / 1024
+    from stage_process import run_stage
+
+    return run_stage(["match", str(ws), "--force", "--quiet", "--no-plots"])
 
 
 def main() -> None:

@@ -126,21 +126,11 @@ CHAIN_CASES = [("crowd-6", "crowd6_seed0", 60, 0.5, 0), ("crowd-6", "crowd6_seed
 
 
 def run_measured(stage: str, ws_path: Path) -> tuple[float, float]:
-    """`mamma-kit STAGE WS` in its own process: wall seconds and the peak resident memory (MB) of
-    that process and the workers it waited for."""
-    import os
-    import subprocess
-    import sys
+    """`mamma-kit STAGE WS` in its own process: wall seconds and peak resident memory (MB)."""
+    from stage_process import run_stage
 
-    t0 = time.perf_counter()
     extra = ["--backend", "pose"] if stage == "track" else []  # what `mamma-kit init` sets for real captures
-    proc = subprocess.Popen([sys.executable, "-m", "mamma_kit", stage, str(ws_path), "--quiet", "--force", *extra])
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode:
-        raise RuntimeError(f"mamma-kit {stage} {ws_path} failed ({proc.returncode})")
-    # ru_maxrss (kB) is the largest single process among the stage and its children
-    return round(time.perf_counter() - t0, 1), round(usage.ru_maxrss / 1024, 0)
+    return run_stage([stage, str(ws_path), "--quiet", "--force", *extra])
 
 
 def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed) -> dict:
