@@ -137,7 +137,7 @@ def resample_to(b: ViewTracks, times: np.ndarray) -> tuple[np.ndarray, np.ndarra
 def _lines(F_33: np.ndarray, xy_n2: np.ndarray) -> np.ndarray:
     """Epipolar lines F x (..., 3), each scaled so (a, b) has unit norm (NaN where degenerate)."""
     l = xy_n2[..., 0:1] * F_33[:, 0] + xy_n2[..., 1:2] * F_33[:, 1] + F_33[:, 2]
-    n = np.linalg.norm(l[..., :2], axis=-1, keepdims=True)
+    n = np.sqrt(l[..., 0] * l[..., 0] + l[..., 1] * l[..., 1])[..., None]
     return l / np.where(n > 1e-15, n, np.nan)
 
 
@@ -149,14 +149,18 @@ def _chunk_distances(a: ViewTracks, b: ViewTracks, sel: np.ndarray, F_ab: np.nda
     xa, va, ha = a.xy_tkl2[sel], a.vis_tkl[sel], a.height_tk[sel]
     lb = _lines(F_ab, xa)  # (f, Ka, L, 3) lines in b
     la = _lines(F_ab.T, xb)  # (f, Kb, L, 3) lines in a
-    # point-line distances for every track pair: (f, Ka, Kb, L)
-    db = np.abs(np.einsum("fjlc,filc->fijl", xb, lb[..., :2]) + lb[:, :, None, :, 2])
-    da = np.abs(np.einsum("filc,fjlc->fijl", xa, la[..., :2]) + la[:, None, :, :, 2])
+    # point-line distances for every track pair: (f, Ka, Kb, L), a x + b y + c written out (an
+    # einsum over a length-2 axis costs several times the arithmetic)
+    xb_, lb_ = xb[:, None], lb[:, :, None]
+    db = np.abs(xb_[..., 0] * lb_[..., 0] + xb_[..., 1] * lb_[..., 1] + lb_[..., 2])
+    xa_, la_ = xa[:, :, None], la[:, None]
+    da = np.abs(xa_[..., 0] * la_[..., 0] + xa_[..., 1] * la_[..., 1] + la_[..., 2])
     both = va[:, :, None, :] & vb[:, None, :, :] & okb[:, None, :, None]
     rel = 0.5 * (da / ha[:, :, None, None] + db / hb[:, None, :, None])
-    both &= np.isfinite(rel)
+    finite = np.isfinite(rel)
+    both &= finite
     cap_px = cap * (ha[:, :, None, None] + hb[:, None, :, None]) / 2
-    return both, np.minimum(np.nan_to_num(rel, nan=cap), cap), 0.5 * (da + db), cap_px
+    return both, np.minimum(np.where(finite, rel, cap), cap), 0.5 * (da + db), cap_px
 
 
 def frame_distances(a: ViewTracks, b: ViewTracks, cap: float = 0.25, min_per_frame: int = 5,
