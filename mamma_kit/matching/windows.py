@@ -242,13 +242,16 @@ class TrackGeometry:
         return self._positions[key]
 
     def _positions_of(self, ch: Chain) -> tuple[np.ndarray, np.ndarray]:
-        pts = []
+        t_n, X_n3 = [np.zeros(0)], [np.zeros((0, 3))]
         for w in sorted(ch.windows):
             members = list(ch.windows[w])
             if len({c for c, _ in members}) >= 2:
-                pts += self._triangulated(members)
-        pts.sort(key=lambda p: p[0])
-        return np.array([p[0] for p in pts]), np.array([p[1] for p in pts]).reshape(-1, 3)
+                for t, X in self._triangulated(members):
+                    t_n.append(t)
+                    X_n3.append(X)
+        t, X = np.concatenate(t_n), np.concatenate(X_n3)
+        order = np.argsort(t, kind="stable")
+        return t[order], X[order]
 
     def same_place(self, a: Chain, b: Chain, radius: float = 0.35, share: float = 0.5) -> bool:
         """Chain a is within ``radius`` of chain b at more than ``share`` of the instants both are
@@ -271,9 +274,10 @@ class TrackGeometry:
             return None
         return (t[0], np.median(X[:n], 0)), (t[-1], np.median(X[-n:], 0))
 
-    def _triangulated(self, members) -> list[tuple[float, np.ndarray]]:
-        """(t, X) per frame of the members' main view (the one with most frames) where two or more
-        views' tracks are seen: the point nearest to their centroids' rays."""
+    def _triangulated(self, members) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per track of the members' main view (the one with most frames), times (n,) and points
+        (n, 3) at its frames where two or more views' tracks are seen: the point nearest to their
+        centroids' rays (arrays, not a tuple per frame: a take of minutes has millions)."""
         by_view: dict[str, list] = {}
         for key in members:
             by_view.setdefault(key[0], []).append(key)
@@ -292,7 +296,7 @@ class TrackGeometry:
                         o, d, ok = self._rays(c, self.col[kk], np.maximum(g, 0))
                         rays.append((o, d, ok & (g >= 0) & v.valid_tk[np.maximum(g, 0), self.col[kk]]))
             X, n = _closest_points(rays)
-            out += [(float(ti), Xi) for ti, Xi in zip(t[n >= 2], X[n >= 2])]
+            out.append((t[n >= 2], X[n >= 2]))
         return out
 
     def _rays(self, cam: str, k: int, frames: np.ndarray):
