@@ -40,25 +40,25 @@ def looped(tracks, n: int):
 
 
 def make_workspace(src: Path, dst: Path, n: int) -> tuple[float, int]:
-    """dst: src's landmarks and keypoints looped n times; returns the take's length (s) and frames per camera."""
+    """dst: src's landmarks and keypoints looped n times; returns the take's length (s) and frames
+    per camera (the longest camera's: the cameras' clocks start apart)."""
     from mamma_kit.core.tracks import KeypointTracks, LandmarkTracks
     from mamma_kit.core.workspace import Workspace
 
     ws_src = Workspace(src)
     dst.mkdir(parents=True, exist_ok=True)
-    for name in ("capture.toml",):
-        shutil.copyfile(src / name, dst / name)
+    shutil.copyfile(src / "capture.toml", dst / "capture.toml")
     shutil.copyfile(ws_src.gt_dir / "calibration.toml", dst / "calibration.toml")
     shutil.copyfile(ws_src.gt_dir / "timing.toml", dst / "timing.toml")
     ws = Workspace(dst)
     ws.landmarks_dir.mkdir(exist_ok=True)
     ws.keypoints_file("x").parent.mkdir(exist_ok=True)
-    seconds = 0.0
+    seconds, frames = 0.0, 0
     for cam in ws_src.load_capture().camera_names:
         lt = looped(LandmarkTracks.load(ws_src.landmarks_file(cam)), n)
         lt.save(ws.landmarks_file(cam))
         seconds = max(seconds, float(lt.frame_times[-1] - lt.frame_times[0]))
-        frames = len(lt.frame_times)
+        frames = max(frames, len(lt.frame_times))
         del lt
         if ws_src.keypoints_file(cam).is_file():
             looped(KeypointTracks.load(ws_src.keypoints_file(cam)), n).save(ws.keypoints_file(cam))

@@ -7,11 +7,11 @@ match, fit), timed with its peak resident memory. The decode floor is what merel
 four videos to RGB frames as displayed costs (PyAV through mamma_kit.video.VideoReader), measured in
 the same run, before and after the stages (the smaller counts: a shared machine only slows a run).
 
-Printed per stage: seconds, peak MB, person-view-frames per second (a person in a camera in a frame:
-the tracks' present (frame, track) cells), and the stage's time over the decode floor; then the chain
-end to end. The issue's targets: >= 24 person-view-frames/s end to end, <= 25x the decode floor.
+Printed per stage: seconds, peak MB, person-view-frames per second (a matched person in a camera
+in a frame: the present (frame, track) cells of the tracks `match` gave a person), and the stage's
+time over the decode floor; then the chain end to end. The issue's targets: >= 24 person-view-frames/s end to end, <= 25x the decode floor.
 
-    nice -n 5 .venv/bin/python benchmarks/speed_real.py --root /work/bench/speed [--profile]
+    .venv/bin/python benchmarks/speed_real.py --root /tmp/speed [--profile | --only-profile]
 
 With --profile each stage runs once more under cProfile and its ten most expensive functions (own
 time) are printed: where each stage's time goes.
@@ -76,6 +76,11 @@ def profile_stage(stage: str, args: list[str], out: Path, top: int = 10) -> None
         print(f"    {100 * tt / total:5.1f} %  {tt:7.2f} s own  {ct:7.2f} s cumulative  {ncalls:8d} calls  {name}  ({where})")
 
 
+def profile_all(ws, root: Path) -> None:
+    for stage, extra in STAGES:
+        profile_stage(stage, [str(ws.root), "--force", "--quiet", *extra], root / f"{stage}.prof")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("bench_data/speed"))
@@ -89,8 +94,7 @@ def main() -> None:
     ws = real_workspace(args.root)
     videos = [ws.root / ws.load_capture().cameras[c].video for c in ws.load_capture().camera_names]
     if args.only_profile:
-        for stage, extra in STAGES:
-            profile_stage(stage, [str(ws.root), "--force", "--quiet", *extra], args.root / f"{stage}.prof")
+        profile_all(ws, args.root)
         return
     floor_s, n_frames = decode_floor(videos)
     rows = {}
@@ -112,8 +116,7 @@ def main() -> None:
                                          "stages": rows}, indent=1))
     if args.profile:
         print("profiles (each stage once more, under cProfile):")
-        for stage, extra in STAGES:
-            profile_stage(stage, [str(ws.root), "--force", "--quiet", *extra], args.root / f"{stage}.prof")
+        profile_all(ws, args.root)
 
 
 if __name__ == "__main__":

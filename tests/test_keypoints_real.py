@@ -387,7 +387,8 @@ def test_without_a_head_count_the_views_agree_on_exactly_the_two_people(tmp_path
 
 def test_of_two_tracks_on_one_body_the_one_that_was_elsewhere_gives_it_up():
     """give_up: a person passing behind another, whose ROI found the front one, lets the body go
-    (their last mask lay elsewhere) even when their track is the older; a tie goes to the older."""
+    (their last mask lay elsewhere) even when their track is the older; with no last masks to tell
+    them apart, the younger track gives it up."""
     from mamma_kit.masks.pose import give_up
 
     H, W = 120, 200
