@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import io
 import json
 import os
 import tempfile
@@ -120,10 +119,14 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
 
 
 def write_npz(path: str | os.PathLike, compress: bool = True, **arrays: Any) -> Path:
-    """Atomically write arrays to .npz (compressed by default)."""
-    buf = io.BytesIO()
-    (np.savez_compressed if compress else np.savez)(buf, **arrays)
-    return atomic_write_bytes(path, buf.getvalue())
+    """Atomically write arrays to .npz (compressed by default), streamed into the temporary file: a
+    long take's landmark file is hundreds of MB, and a buffer in memory held it twice."""
+    with atomic_path(path, ".npz") as tmp:
+        with open(tmp, "wb") as f:
+            (np.savez_compressed if compress else np.savez)(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+    return Path(path)
 
 
 def read_npz(path: str | os.PathLike, what: str = "array file", keys: tuple[str, ...] | None = None

@@ -214,9 +214,9 @@ class LandmarkTracks:
     def save(self, path: str | Path) -> Path:
         return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
                          frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,
-                         xy=self.xy.astype(np.float32), sigma=self.sigma.astype(np.float32),
-                         visibility=self.visibility.astype(np.float32), contact=self.contact.astype(np.float32),
-                         floor_contact=self.floor_contact.astype(np.float32),
+                         xy=self.xy.astype(np.float32, copy=False), sigma=self.sigma.astype(np.float32, copy=False),
+                         visibility=self.visibility.astype(np.float32, copy=False), contact=self.contact.astype(np.float32, copy=False),
+                         floor_contact=self.floor_contact.astype(np.float32, copy=False),
                          landmark_set=np.array(self.landmark_set), source=np.array(self.source),
                          producer=_producer_str(self.producer))
 
@@ -273,11 +273,11 @@ class KeypointTracks:
     def save(self, path: str | Path) -> Path:
         return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
                          frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,
-                         xy=self.xy.astype(np.float32), z=self.z.astype(np.float32),
-                         visibility=self.visibility.astype(np.float32), presence=self.presence.astype(np.float32),
-                         score=self.score.astype(np.float32), model=np.array(self.model),
-                         hand_xy=self.hand_xy.astype(np.float32), hand_presence=self.hand_presence.astype(np.float32),
-                         hand_right=self.hand_right.astype(np.float32),
+                         xy=self.xy.astype(np.float32, copy=False), z=self.z.astype(np.float32, copy=False),
+                         visibility=self.visibility.astype(np.float32, copy=False), presence=self.presence.astype(np.float32, copy=False),
+                         score=self.score.astype(np.float32, copy=False), model=np.array(self.model),
+                         hand_xy=self.hand_xy.astype(np.float32, copy=False), hand_presence=self.hand_presence.astype(np.float32, copy=False),
+                         hand_right=self.hand_right.astype(np.float32, copy=False),
                          producer=_producer_str(self.producer))
 
     @classmethod
