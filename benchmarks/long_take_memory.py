@@ -9,6 +9,14 @@ pictures (one video frame per camera) are left out: the looped workspaces have n
 
     nice -n 10 python benchmarks/long_take_memory.py --source /work/bench/ident/room_wander \\
         --out /work/bench/long --loops 1,5,25
+
+With --stages the videos themselves are looped (decoded, played ping-pong, re-encoded; only the
+cameras given by --cameras, to keep the run short) and every stage from the videos runs on each
+length, each in its own process: `track`, `keypoints`, `landmarks`, `match`, with their peak memory
+and time, so a stage whose memory grows with the take shows it.
+
+    nice -n 10 python benchmarks/long_take_memory.py --source /work/bench/ident/crowd6_seed0 \\
+        --out /work/bench/long_stages --stages --cameras cam0,cam4 --loops 1,4,16
 """
 
 from __future__ import annotations
@@ -65,6 +73,65 @@ def make_workspace(src: Path, dst: Path, n: int) -> tuple[float, int]:
     return seconds, frames
 
 
+def make_video_workspace(src: Path, dst: Path, n: int, cams: list[str]) -> tuple[float, int]:
+    """dst: src's videos of ``cams`` looped n times (ping-pong), with its true calibration and clocks;
+    returns the take's length (s) and frames per camera."""
+    import tomli_w
+
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.video.reader import VideoReader
+    from mamma_kit.video.writer import VideoWriter
+
+    ws_src = Workspace(src)
+    cap = ws_src.load_capture()
+    (dst / "videos").mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(ws_src.gt_dir / "calibration.toml", dst / "calibration.toml")
+    shutil.copyfile(ws_src.gt_dir / "timing.toml", dst / "timing.toml")
+    doc = {"capture": {k: v for k, v in cap.raw.get("capture", {}).items()}, "cameras": {}}
+    seconds, frames = 0.0, 0
+    for cam in cams:
+        entry = cap.cameras[cam]
+        rd = VideoReader(entry.video if Path(entry.video).is_absolute() else src / entry.video, entry.rotation)
+        imgs = [img for _, img in rd.frames()]
+        times = rd.timestamps
+        period = float(np.median(np.diff(times))) if len(times) > 1 else 1 / 30
+        idx = ping_pong(len(imgs), n)
+        h, w = imgs[0].shape[:2]
+        with VideoWriter(dst / "videos" / f"{cam}.mp4", w, h, fps=1.0 / period) as wr:
+            for i, k in enumerate(idx):
+                wr.write_frame(imgs[k], float(times[0] + period * i))
+        doc["cameras"][cam] = {"video": f"videos/{cam}.mp4"}
+        seconds, frames = max(seconds, period * (len(idx) - 1)), max(frames, len(idx))
+    (dst / "capture.toml").write_bytes(tomli_w.dumps(doc).encode())
+    return seconds, frames
+
+
+STAGE_ARGS = {"track": ["--quiet"], "keypoints": ["--quiet"], "landmarks": ["--quiet"],
+              "match": ["--quiet", "--no-plots"]}
+
+
+def main_stages(args) -> None:
+    from stage_process import run_stage
+
+    from mamma_kit.core.identities import read_identities
+    from mamma_kit.core.workspace import Workspace
+
+    cams = args.cameras.split(",")
+    print(f"{args.source.name}: cameras {', '.join(cams)}; every stage from the videos looped n times")
+    print(f"{'n':>4s} {'take s':>8s} {'frames/cam':>10s} {'persons':>7s}  "
+          + "  ".join(f"{s + ' MB/s':>18s}" for s in STAGE_ARGS))
+    for n in [int(x) for x in args.loops.split(",")]:
+        ws = args.out / f"{args.source.name}_v{n}"
+        seconds, frames = make_video_workspace(args.source, ws, n, cams)
+        cells = []
+        for stage, extra in STAGE_ARGS.items():
+            secs, peak = run_stage([stage, str(ws), "--force", *extra])
+            cells.append(f"{peak:8.0f} / {secs:7.1f}")
+        persons = len(read_identities(Workspace(ws).identities).person_ids)
+        print(f"{n:4d} {seconds:8.1f} {frames:10d} {persons:7d}  " + "  ".join(f"{c:>18s}" for c in cells),
+              flush=True)
+
+
 def run_match(ws: Path) -> tuple[float, float]:
     from stage_process import run_stage
 
@@ -76,7 +143,11 @@ def main() -> None:
     ap.add_argument("--source", type=Path, required=True, help="a rendered workspace with landmarks and keypoints")
     ap.add_argument("--out", type=Path, required=True, help="folder for the looped workspaces")
     ap.add_argument("--loops", default="1,4,16")
+    ap.add_argument("--stages", action="store_true", help="loop the videos and run every stage from them")
+    ap.add_argument("--cameras", default="cam0,cam4", help="with --stages: the cameras to loop")
     args = ap.parse_args()
+    if args.stages:
+        return main_stages(args)
     from mamma_kit.core.identities import read_identities
     from mamma_kit.core.workspace import Workspace
 

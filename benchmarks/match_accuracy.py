@@ -138,6 +138,7 @@ def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed)
     clocks, and score the identities per frame."""
     import shutil
 
+    from mamma_kit.core.filled import load_identities
     from mamma_kit.core.identities import read_identities
     from mamma_kit.core.timingfile import read_timing
     from mamma_kit.core.tracks import MaskTracks
@@ -159,10 +160,13 @@ def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed)
     shutil.copyfile(ws.gt_dir / "calibration.toml", ws.calibration)
     shutil.copyfile(ws.gt_dir / "timing.toml", ws.timing)
     secs, peak_mb = {}, {}
-    for stage in ("track", "keypoints", "landmarks", "match"):
+    for stage in ("track", "keypoints", "landmarks", "match", "fill"):
         secs[stage], peak_mb[stage] = run_measured(stage, ws_path)
     clocks, _ = read_timing(ws.timing)
-    r = frame_scores(ws, read_identities(ws.identities), clocks)
+    r = frame_scores(ws, load_identities(ws), clocks)
+    # the match's own identities on the tracker's tracks (before the fill), for comparison
+    r["before_fill"] = {k: v for k, v in frame_scores(ws, read_identities(ws.identities), clocks, fill=False).items()
+                        if k in ("matched", "tracked", "wrong", "switches", "false_tracks")}
     cams = ws.load_capture().camera_names
     r["tracks"] = sum(len(MaskTracks.load(ws.mask_file(c)).track_ids) for c in cams)
     r["seconds"] = secs
@@ -174,7 +178,7 @@ def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed)
 def main_chain(args) -> None:
     rows = []
     print(f"{'capture':22s} {'cams':>4s} {'tracks':>6s} {'on nobody':>9s} {'persons':>7s} {'matched':>8s} "
-          f"{'wrong':>6s} {'switches':>8s} {'false':>5s} {'missed':>6s}  seconds (track/keypoints/landmarks/match)")
+          f"{'wrong':>6s} {'switches':>8s} {'false':>5s} {'missed':>6s}  seconds (track/keypoints/landmarks/match/fill)")
     for recipe, folder, frames, scale, seed in CHAIN_CASES:
         if args.case and folder not in args.case:
             continue
@@ -185,10 +189,15 @@ def main_chain(args) -> None:
         print(f"{name:22s} {r['cameras']:4d} {r['tracks']:6d} {len(r['tracks_on_nothing']):9d} "
               f"{r['persons']:3d}/{r['gt_persons']:<3d} {100 * r['matched']:7.1f}% {100 * r['wrong']:5.1f}% "
               f"{r['switches']:8d} {len(r['false_tracks']):5d} {len(r['missed_persons']):6d}  "
-              f"{s['track']}/{s['keypoints']}/{s['landmarks']}/{s['match']}", flush=True)
+              f"{s['track']}/{s['keypoints']}/{s['landmarks']}/{s['match']}/{s['fill']}", flush=True)
+        b = r["before_fill"]
+        print(f"    before the fill (the tracker's tracks): matched {100 * b['matched']:.1f}%, tracked "
+              f"{100 * b['tracked']:.1f}%, wrong {100 * b['wrong']:.1f}%, switches {b['switches']}, "
+              f"false {len(b['false_tracks'])}", flush=True)
         m = r["peak_rss_mb"]
-        print(f"    peak memory MB (track/keypoints/landmarks/match): "
-              f"{m['track']:.0f}/{m['keypoints']:.0f}/{m['landmarks']:.0f}/{m['match']:.0f}", flush=True)
+        print(f"    peak memory MB (track/keypoints/landmarks/match/fill): "
+              f"{m['track']:.0f}/{m['keypoints']:.0f}/{m['landmarks']:.0f}/{m['match']:.0f}/{m['fill']:.0f}",
+              flush=True)
         print(f"    matched per person {r['matched_per_person']}; false tracks {r['false_tracks']}; "
               f"tracks on nobody {r['tracks_on_nothing']}", flush=True)
     if args.json:

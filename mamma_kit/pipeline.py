@@ -1,6 +1,6 @@
 """capture-to-smplx: the whole chain on one workspace, each stage cached by its inputs.
 
-    calibrate -> sync -> track -> landmarks -> match -> fit -> report
+    calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> report
 
 (sync runs after track and keypoints when its method is motion or auto: motion sync reads the
 people's keypoints.)
@@ -52,6 +52,7 @@ KNOWN = {
     "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads", "hands",
                   "smooth_s", "contact"},
     "match": {"lam", "max_distance", "min_affinity", "window", "plots"},
+    "fill": {"enabled"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model", "hand_points"},
     "report": {"video"},
 }
@@ -109,6 +110,9 @@ def _key_facts(stage: str, res: dict) -> str:
         if stage == "match":
             persons = res.get("persons") or []
             return f"{len(persons)} person(s), views " + ", ".join(str(p.get("views")) for p in persons)
+        if stage == "fill":
+            return (f"{res.get('found', 0)} of {res.get('gaps', 0)} missing person-view-frames found"
+                    if "found" in res else str(res.get("reason", "")))
         if stage == "fit":
             rp = res.get("reprojection_px", {})
             med = [v["median"] for v in rp.values() if v.get("landmarks")]
@@ -186,6 +190,10 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         res = run_match(ws, lam=float(opts.get("lam", 0.05)), max_distance=float(opts.get("max_distance", 0.12)),
                         min_affinity=float(opts.get("min_affinity", 0.25)), window_s=float(opts.get("window", 2.0)),
                         plots=bool(opts.get("plots", True)), force=force)
+    elif stage == "fill":
+        from mamma_kit.filling.stage import run_fill
+
+        res = run_fill(ws, force=force, enabled=bool(opts.get("enabled", True)))
     elif stage == "fit":
         from mamma_kit.fitting.stage import fit_workspace
         from mamma_kit.fitting.stages import FitConfig

@@ -401,3 +401,73 @@ def test_of_two_tracks_on_one_body_the_one_that_was_elsewhere_gives_it_up():
     assert give_up(3, own, 7, own, {3: behind, 7: front}) == 3  # track 3 is older, but was elsewhere
     assert give_up(3, own, 7, own, {3: front, 7: behind}) == 7
     assert give_up(3, own, 7, own, {}) == 7  # no history: the younger
+
+
+def test_fill_finds_a_person_a_view_lost_where_the_others_see_them(real_ws, tmp_path):
+    """`mamma-kit fill` on the real recording: one person's track loses eight frames in cam03 (cut
+    out of its masks and keypoints); the other three views see them there, so BlazePose looks where
+    their skeleton projects and the frames come back as a track of that person on the same body
+    (mask IoU with the cut masks > 0.5, limb joints within 5 % of the person's height), with
+    landmarks. The stages after read the view's tracks with the new ones; a match run again makes
+    the fill stale, and they read the match's own."""
+    import shutil
+
+    from mamma_kit.core import filled
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.identities import write_identities
+    from mamma_kit.core.tracks import LandmarkTracks
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.filling.stage import run_fill
+    from mamma_kit.matching.match import MatchSettings
+    from mamma_kit.matching.pairs import ViewTracks
+    from mamma_kit.matching.windows import WindowSettings, match_take
+
+    shutil.copytree(real_ws.root, tmp_path / "ws")
+    ws = Workspace(tmp_path / "ws")
+    rig, _ = read_calibration(ws.calibration)
+    views = [ViewTracks.from_keypoints(kt, rig[c], kt.frame_times)
+             for c in CAMS for kt in [KeypointTracks.load(ws.keypoints_file(c))]]
+    ident = match_take(views, None, MatchSettings(), WindowSettings())
+    person = ident.person_ids[0]
+    tid = next(t for c, t in ident.tracks_of(person) if c == "cam03")
+    mt, kt = MaskTracks.load(ws.mask_file("cam03")), KeypointTracks.load(ws.keypoints_file("cam03"))
+    k = list(mt.track_ids).index(tid)
+    cut = np.arange(6, 14)
+    cut = cut[mt.present[cut, k]]
+    assert len(cut) >= 6
+    cut_masks = {int(f): mt.mask(int(f), k) for f in cut}
+    cut_xy = kt.xy[cut, k].copy()
+    mt.rle_index[cut, k] = 0
+    mt.boxes[cut, k] = np.nan
+    mt.save(ws.mask_file("cam03"))
+    kt.valid[cut, k] = False
+    kt.xy[cut, k] = np.nan
+    kt.save(ws.keypoints_file("cam03"))
+    write_identities(ws.identities, ident)
+
+    res = run_fill(ws)
+    assert not res["skipped"] and res["found"] >= len(cut) - 1, res
+    fm = MaskTracks.load(ws.fill_file("masks", "cam03"))
+    fk = KeypointTracks.load(ws.fill_file("keypoints", "cam03"))
+    fl = LandmarkTracks.load(ws.fill_file("landmarks", "cam03"))
+    fi = filled.load_identities(ws)
+    assert fm.track_ids.min() > mt.track_ids.max()
+    height = np.ptp(cut_xy[..., 1], axis=1).max()
+    back = 0
+    for i, f in enumerate(cut):
+        cols = [j for j in np.flatnonzero(fm.present[f]) if fi.person_of("cam03", int(fm.track_ids[j])) == person]
+        if not cols:
+            continue
+        j = cols[0]
+        m, was = fm.mask(int(f), j), cut_masks[int(f)]
+        assert (m & was).sum() / (m | was).sum() > 0.5, f"frame {f}"
+        err = np.nanmedian(np.linalg.norm(fk.xy[f, j, LIMBS] - cut_xy[i, LIMBS], axis=-1))
+        assert err < 0.05 * height, f"frame {f}: limb joints {err:.1f} px from the cut ones"
+        assert fl.valid[f, j] and np.isfinite(fl.xy[f, j]).all()
+        back += 1
+    assert back >= len(cut) - 1, f"{back} of {len(cut)} cut frames found again"
+    assert len(filled.load_masks(ws, "cam03").track_ids) == len(mt.track_ids) + len(fm.track_ids)
+    ident.settings = {**ident.settings, "run": "again"}
+    write_identities(ws.identities, ident)  # the match ran again: the fill no longer applies
+    assert not filled.fill_is_current(ws)
+    assert len(filled.load_masks(ws, "cam03").track_ids) == len(mt.track_ids)

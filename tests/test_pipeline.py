@@ -66,12 +66,12 @@ def test_first_run_runs_every_stage_and_second_skips_all(reference):
     ws, run = reference
     st = {k: v["status"] for k, v in run["stages"].items()}
     assert st == {"calibrate": "provided", "sync": "ran", "track": "ran", "keypoints": "ran", "landmarks": "ran", "match": "ran",
-                  "fit": "ran", "report": "ran"}
+                  "fill": "skipped", "fit": "ran", "report": "ran"}  # fill: nothing to read new tracks with
     assert (ws / "report" / "index.html").is_file()
     again = capture_to_smplx(ws, progress=False)
     assert {k: v["status"] for k, v in again["stages"].items()} == {
         "calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "skipped", "match": "skipped",
-        "fit": "skipped", "report": "skipped"}
+        "fill": "skipped", "fit": "skipped", "report": "skipped"}
     # the fit recovers the person (the numbers themselves are tested in test_fit_tiny.py)
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.evaluation.fit import evaluate
@@ -105,7 +105,7 @@ def test_ctrl_c_mid_stage_resumes_and_ends_with_the_same_result(template, refere
     run = capture_to_smplx(ws, to_stage="fit", progress=False)
     st = {k: v["status"] for k, v in run["stages"].items()}
     assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "ran",
-                  "match": "ran", "fit": "ran"}
+                  "match": "ran", "fill": "skipped", "fit": "ran"}
     cams = {c["camera"]: c["skipped"] for c in run["stages"]["landmarks"]["summary"]["cameras"]}
     assert cams == {"cam0": True, "cam1": False}
     ref = _results(reference[0])
@@ -152,18 +152,18 @@ def test_a_changed_input_recomputes_exactly_what_depends_on_it(template, tmp_pat
     write_toml(ws / "capture.toml", cap)
     st = {k: v["status"] for k, v in capture_to_smplx(ws, to_stage="fit", progress=False)["stages"].items()}
     assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "ran",
-                  "match": "ran", "fit": "ran"}
+                  "match": "ran", "fill": "skipped", "fit": "ran"}
     # a new fit setting: only the fit
     cap["settings"]["fit"] = {"stages": 3}
     write_toml(ws / "capture.toml", cap)
     st = {k: v["status"] for k, v in capture_to_smplx(ws, to_stage="fit", progress=False)["stages"].items()}
     assert st == {"calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "skipped",
-                  "match": "skipped", "fit": "ran"}
+                  "match": "skipped", "fill": "skipped", "fit": "ran"}
     # an edited output is never silently reused: its stage is redone
     (ws / "identities.json").write_text((ws / "identities.json").read_text() + " ")
     st = {k: v["status"] for k, v in capture_to_smplx(ws, from_stage="match", to_stage="fit",
                                                      progress=False)["stages"].items()}
-    assert st == {"match": "ran", "fit": "skipped"}  # same identities again: the fit's inputs are unchanged
+    assert st == {"match": "ran", "fill": "skipped", "fit": "skipped"}  # same identities again: the fit's inputs are unchanged
 
 
 def test_bad_settings_and_stage_names_are_user_errors(template, tmp_path):

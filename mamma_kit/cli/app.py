@@ -11,7 +11,7 @@ import sys
 # Each command module adds its commands to root.app; within a help panel, the order of
 # registration is the order in --help: the pipeline's order, then the tools.
 from mamma_kit.cli import pipeline, demo  # noqa: F401  (init, capture-to-smplx, demo)
-from mamma_kit.cli import board, calibrate, sync, track, keypoints, landmarks, match  # noqa: F401
+from mamma_kit.cli import board, calibrate, sync, track, keypoints, landmarks, match, fill  # noqa: F401
 from mamma_kit.cli import synth, eval, train  # noqa: F401  (before fit: its pick-cameras is a tool)
 from mamma_kit.cli import fit, report  # noqa: F401
 from mamma_kit.cli import doctor, calib, body  # noqa: F401

@@ -86,7 +86,7 @@ def capture_to_smplx_cmd(
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
-    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fit -> report, each stage skipped
+    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> report, each stage skipped
     when its inputs are unchanged; an interrupted run resumes where it stopped.
 
     Stage options come from capture.toml's \\[settings.<stage>] tables."""

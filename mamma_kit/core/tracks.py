@@ -31,7 +31,7 @@ Every file also holds ``producer`` (JSON string: tool, version, command, input h
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -312,3 +312,24 @@ def join_frame_ranges(parts: list[tuple[int, int, object]]):
             if isinstance(a, np.ndarray) and a.ndim >= 2 and a.shape[0] == T:
                 a[start:stop] = getattr(part, f.name)[start:stop]
     return out
+
+
+def append_tracks(base, extra):
+    """``base``'s tracks followed by ``extra``'s: one MaskTracks, KeypointTracks or LandmarkTracks of
+    the same camera and frames. Every (T, K, ...) array is joined along K; a MaskTracks' RLE runs are
+    appended and its index moved past ``base``'s."""
+    if type(base) is not type(extra) or not np.array_equal(base.frame_times, extra.frame_times):
+        raise ValueError("append_tracks: not the same kind of tracks on the same frames")
+    T, K = len(base.frame_times), len(base.track_ids)
+    changes = {"track_ids": np.r_[base.track_ids, extra.track_ids].astype(np.int64)}
+    for f in fields(base):
+        a = getattr(base, f.name)
+        if f.name == "frame_times" or not isinstance(a, np.ndarray) or a.ndim < 2 or a.shape[:2] != (T, K):
+            continue
+        b = getattr(extra, f.name)
+        if f.name == "rle_index":
+            b = b + np.array([len(base.rle_counts), 0], np.int64)
+        changes[f.name] = np.concatenate([a, b.astype(a.dtype, copy=False)], 1)
+    if isinstance(base, MaskTracks):
+        changes["rle_counts"] = np.r_[base.rle_counts, extra.rle_counts].astype(base.rle_counts.dtype)
+    return replace(base, **changes)

@@ -39,7 +39,7 @@ from typing import Any
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_toml, write_toml
 
-STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fit", "report")
+STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fill", "fit", "report")
 
 
 ROTATIONS = (0, 90, 180, 270)
@@ -171,6 +171,16 @@ class Workspace:
 
     def landmarks_file(self, cam: str) -> Path:
         return self.landmarks_dir / f"{cam}.npz"
+
+    @property
+    def fill_dir(self) -> Path:
+        """`mamma-kit fill`'s tracks (fill/masks, fill/keypoints, fill/landmarks: only the tracks it
+        added) and fill/identities.json (the match's identities with them)."""
+        return self.root / "fill"
+
+    def fill_file(self, kind: str, cam: str) -> Path:
+        """fill/<kind>/<cam>.npz, kind one of masks, keypoints, landmarks."""
+        return self.fill_dir / kind / f"{cam}.npz"
 
     def person_file(self, k: int) -> Path:
         return self.smplx_dir / f"person_{k}.npz"

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mamma_kit.core.filled import load_masks
 from mamma_kit.core.identities import Identities, read_identities
 from mamma_kit.core.tracks import LandmarkTracks, MaskTracks
 from mamma_kit.core.workspace import Workspace
@@ -75,7 +76,7 @@ def evaluate(ws: Workspace) -> dict | None:
 
 
 def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: float = 0.25,
-                 min_iou: float = 0.25) -> dict:
+                 min_iou: float = 0.25, fill: bool = True) -> dict:
     """Identities per frame against ground truth, as a user sees them. Per camera and frame, tracks
     and the gt persons the camera sees (at least ``min_visible`` of their surface landmarks visible)
     are paired one-to-one by mask IoU (Hungarian, IoU >= ``min_iou``: a track is on at most one
@@ -92,6 +93,8 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
     - ``tracks_on_nothing``: the tracker's tracks on no gt person in most of their frames;
     - ``missed_persons`` / ``extra_persons``: gt persons without a person id, person ids without a
       gt person. ``clocks``: camera -> ClockModel (camera time -> reference time) that match used.
+    ``fill``: each view's tracks with those `mamma-kit fill` added (core.filled; pass the identities
+    that name them), or the tracker's alone.
     """
     from mamma_kit.evaluation.masks import compare_camera, pair_frames
 
@@ -100,7 +103,8 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
         gt_path = ws.gt_dir / "masks" / f"{c}.npz"
         if not (ws.mask_file(c).is_file() and gt_path.is_file()):
             continue
-        pred, gt = MaskTracks.load(ws.mask_file(c)), MaskTracks.load(gt_path)
+        pred = load_masks(ws, c) if fill else MaskTracks.load(ws.mask_file(c))
+        gt = MaskTracks.load(gt_path)
         e = compare_camera(pred, gt)
         lt = LandmarkTracks.load(ws.gt_dir / "landmarks" / f"{c}.npz")
         tg = pair_frames(gt.frame_times, pred.frame_times)  # gt frame -> pred frame
@@ -157,7 +161,9 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
             seq = cov[:, j][cov[:, j] >= 0]
             switches += int(np.count_nonzero(seq[1:] != seq[:-1]))
         for k in range(on_tk.shape[1]):
-            pres, given = present_tk[:, k], pid_tk[:, k] >= 0
+            # given: the frames the track has a person in (a whole-track assignment names every frame)
+            pres = present_tk[:, k]
+            given = pres & (pid_tk[:, k] >= 0)
             if pres.sum() and (on_tk[pres, k] < 0).mean() > 0.5:
                 on_nothing.append(f"{c}:{int(tids[k])}")
             if given.sum() and (on_tk[given, k] < 0).mean() > 0.5:

@@ -40,7 +40,8 @@ from mamma_kit.core.calibfile import read_calibration
 from mamma_kit.core.camera import Rig
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
-from mamma_kit.core.tracks import HAND_SURE_FLAG, N_HAND_POINTS, LandmarkTracks
+from mamma_kit.core.filled import fill_inputs, load_landmarks
+from mamma_kit.core.tracks import HAND_SURE_FLAG, N_HAND_POINTS
 from mamma_kit.core.workspace import Workspace
 
 NEAR_FRAC = 0.25  # use a lone neighbouring frame when within this fraction of a frame interval
@@ -119,9 +120,10 @@ class PersonMap:
     show different people in different stretches), else each track id is its person id."""
 
     def __init__(self, ws: Workspace):
-        from mamma_kit.core.identities import read_identities
+        from mamma_kit.core.filled import load_identities
 
-        self.ident = read_identities(ws.identities) if ws.identities.is_file() else None
+        # the match's identities, with the tracks `mamma-kit fill` added where it ran on them
+        self.ident = load_identities(ws) if ws.identities.is_file() else None
         self.notes: list[str] = []
         if self.ident is None:
             self.notes.append("no identities.json: each view's track id is taken as the person id")
@@ -197,7 +199,7 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
                    pindex: dict, image_sizes: dict) -> tuple[np.ndarray | None, ...]:
     """kp_xy, kp_vis, kp_size, hand_xy, hand_vis (module doc) and the files read; Nones without
     any file."""
-    from mamma_kit.core.tracks import KeypointTracks
+    from mamma_kit.core.filled import load_keypoints as load_filled_keypoints
 
     have = [n for n in names if ws.keypoints_file(n).is_file()]
     if not have:
@@ -213,7 +215,7 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
     for ci, n in enumerate(names):
         if n not in have:
             continue
-        kt = KeypointTracks.load(ws.keypoints_file(n))
+        kt = load_filled_keypoints(ws, n)
         if tuple(kt.image_size) != tuple(image_sizes[n]):
             raise UserError(f"keypoints/{n}.npz is for {kt.image_size[0]}x{kt.image_size[1]} images, "
                             f"calibration.toml says {image_sizes[n][0]}x{image_sizes[n][1]}",
@@ -280,7 +282,7 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         log.warn(f"fitting from {len(names)} camera: depth comes only from the body model")
     rig = rig_all.subset(names)
     clocks, reference, notes = _read_clocks(ws, names)
-    tracks = {n: LandmarkTracks.load(ws.landmarks_file(n)) for n in names}
+    tracks = {n: load_landmarks(ws, n) for n in names}
     L = {lt.n_landmarks for lt in tracks.values()}
     if len(L) != 1 or (n_landmarks is not None and L != {n_landmarks}):
         raise UserError(f"landmark files hold {sorted(L)} landmarks, the body model has {n_landmarks}",
@@ -347,7 +349,7 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
             present[ci, pi, take] = True
     sets = {lt.landmark_set for lt in tracks.values()}
     inputs = [ws.calibration] + [ws.landmarks_file(n) for n in names]
-    inputs += [p for p in (ws.timing, ws.identities) if p.is_file()]
+    inputs += [p for p in (ws.timing, ws.identities) if p.is_file()] + fill_inputs(ws, names)
     kp_xy = kp_vis = kp_size = hand_xy = hand_vis = None
     if keypoints:
         kp_xy, kp_vis, kp_size, hand_xy, hand_vis, kp_files = load_keypoints(

@@ -146,6 +146,29 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
     return summary
 
 
+def landmarks_of(ws, cam: str, masks, keypoints, options: dict | None = None, device: str = "cpu"):
+    """Landmarks of tracks that are not the workspace's masks file (those `mamma-kit fill` adds), with
+    the network and settings the stage would use (``options``: capture.toml's [settings.landmarks]):
+    the same crops, hand refinement, contact network and smoothing, so they read like the rest."""
+    from mamma_kit.core.reproducible import one_thread
+    from mamma_kit.landmarks.hands import hand_refiner
+    from mamma_kit.landmarks.inference import Predictor, run_camera
+    from mamma_kit.landmarks.smooth import SMOOTH_S, smooth_landmarks
+    from mamma_kit.landmarks.weights import load_model
+
+    opts = options or {}
+    loaded = load_model(opts.get("weights"), opts.get("arch"), device)
+    refiner = hand_refiner(loaded.landmark_set, opts.get("hands", "auto"))
+    contact = contact_network(loaded, opts.get("contact", "auto"), device)
+    entry = ws.load_capture().cameras[cam]
+    with one_thread():
+        lt, _ = run_camera(Predictor(loaded, device), cam, masks, entry.video, int(opts.get("batch", 8)),
+                           keypoints=keypoints, hands=refiner, contact=contact and Predictor(contact, device),
+                           rotation=entry.rotation)
+    smooth_s = float(SMOOTH_S if opts.get("smooth_s") is None else opts["smooth_s"])
+    return smooth_landmarks(lt, smooth_s) if smooth_s > 0 else lt
+
+
 _PREDICTORS: dict = {}
 # the image-only single-query network: its person-contact head beats the keypoint-guided one's (demo,
 # builtin masks, smoothed: ROC AUC 0.946 against 0.859; held-out duo, true masks: 0.968 against 0.823)

@@ -7,4 +7,4 @@
 """
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
-__all__ = ["stage"]
+__all__ = ["pose", "stage"]

@@ -95,33 +95,33 @@ class ReportData:
 
     @cached_property
     def landmarks(self) -> dict:
-        """camera -> LandmarkTracks for every camera with landmarks/<cam>.npz."""
-        from mamma_kit.core.tracks import LandmarkTracks
+        """camera -> LandmarkTracks for every camera with landmarks/<cam>.npz (with the fill's tracks)."""
+        from mamma_kit.core.filled import load_landmarks
 
-        return {c: LandmarkTracks.load(self.ws.landmarks_file(c)) for c in self.cameras
+        return {c: load_landmarks(self.ws, c) for c in self.cameras
                 if self.ws.landmarks_file(c).is_file()}
 
     @cached_property
     def keypoints(self) -> dict:
-        """camera -> KeypointTracks for every camera with keypoints/<cam>.npz."""
-        from mamma_kit.core.tracks import KeypointTracks
+        """camera -> KeypointTracks for every camera with keypoints/<cam>.npz (with the fill's tracks)."""
+        from mamma_kit.core.filled import load_keypoints
 
-        return {c: KeypointTracks.load(self.ws.keypoints_file(c)) for c in self.cameras
+        return {c: load_keypoints(self.ws, c) for c in self.cameras
                 if self.ws.keypoints_file(c).is_file()}
 
     @cached_property
     def mask_tracks(self) -> dict:
-        from mamma_kit.core.tracks import MaskTracks
+        from mamma_kit.core.filled import load_masks
 
-        return {c: MaskTracks.load(self.ws.mask_file(c)) for c in self.cameras if self.ws.mask_file(c).is_file()}
+        return {c: load_masks(self.ws, c) for c in self.cameras if self.ws.mask_file(c).is_file()}
 
     @cached_property
     def identities(self):
         if not self.ws.identities.is_file():
             return None
-        from mamma_kit.core.identities import read_identities
+        from mamma_kit.core.filled import load_identities
 
-        return read_identities(self.ws.identities)
+        return load_identities(self.ws)
 
     def person_of_track(self, cam: str) -> dict[int, int]:
         """track id -> person id in one view (identities.json, else track id = person id)."""

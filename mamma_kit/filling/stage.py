@@ -1,0 +1,153 @@
+"""The fill stage: identities.json + keypoints + masks + videos -> fill/ (tracks where a view lost a
+person the others see).
+
+A view's tracker loses people half hidden behind others, and the match can only name the tracks it
+has. Here the views help each other: where a person of the capture has no track in a camera but
+other cameras see them (filling/gaps.py), BlazePose looks at the place their skeleton projects to
+(filling/look.py); what it finds becomes new tracks of that person in that camera. Their keypoints
+are the model's points (no second run), their landmarks come from the landmarks stage's network
+(landmarks.stage.landmarks_of). Written: fill/masks/<cam>.npz, fill/keypoints/<cam>.npz,
+fill/landmarks/<cam>.npz (only the new tracks, ids after the camera's own) and fill/identities.json
+(the match's identities with the new tracks); the stages after read them through core.filled.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from mamma_kit.core import log
+from mamma_kit.core.errors import UserError
+from mamma_kit.core.manifest import StageManifest, producer
+from mamma_kit.core.tracks import KeypointTracks, MaskTracks
+
+# frames per block when the gaps are triangulated (memory: cameras x frames x persons x 33 points)
+BLOCK_FRAMES = 512
+# found frames of one person in one camera further apart than this are two tracks
+MAX_RUN_GAP = 3
+
+
+def new_tracks(cam: str, masks: MaskTracks, found: list) -> tuple[MaskTracks, KeypointTracks, dict[int, int]]:
+    """The found frames as tracks: per person, runs of frames (gaps <= MAX_RUN_GAP) become tracks
+    with ids after the camera's own. Returns masks, keypoints and track id -> person id."""
+    by_person: dict[int, list] = {}
+    for fd in found:
+        by_person.setdefault(fd.person, []).append(fd)
+    runs = []
+    for p, items in sorted(by_person.items()):
+        items.sort(key=lambda x: x.frame)
+        cur = [items[0]]
+        for fd in items[1:]:
+            if fd.frame - cur[-1].frame > MAX_RUN_GAP:
+                runs.append((p, cur))
+                cur = []
+            cur.append(fd)
+        runs.append((p, cur))
+    runs.sort(key=lambda r: (r[1][0].frame, r[0]))  # columns in order of first frame, as the tracker's
+    first_id = int(masks.track_ids.max()) + 1 if len(masks.track_ids) else 0
+    ids = first_id + np.arange(len(runs), dtype=np.int64)
+    mt = MaskTracks.from_masks(cam, masks.image_size, masks.frame_times, ids,
+                               {(fd.frame, k): fd.mask_hw for k, (_, items) in enumerate(runs) for fd in items},
+                               {(fd.frame, k): fd.score for k, (_, items) in enumerate(runs) for fd in items},
+                               producer("fill"))
+    kt = KeypointTracks.empty(cam, masks.image_size, masks.frame_times, mt.track_ids, model="blazepose-ghum-full")
+    for k, (_, items) in enumerate(runs):
+        for fd in items:
+            kt.valid[fd.frame, k] = True
+            kt.xy[fd.frame, k] = fd.points_p5[:, :2]
+            kt.z[fd.frame, k], kt.visibility[fd.frame, k], kt.presence[fd.frame, k] = fd.points_p5[:, 2:].T
+            kt.score[fd.frame, k] = fd.score
+    return mt, kt, {int(mt.track_ids[k]): int(p) for k, (p, _) in enumerate(runs)}
+
+
+def _camera_gaps(cam: str, cams: list[str], per_cam: dict, rig, persons: list[int]):
+    from mamma_kit.filling.gaps import Gaps, find_gaps
+
+    times, col_tp, _, _ = per_cam[cam]
+    parts = []
+    for a in range(0, len(times), BLOCK_FRAMES):
+        b = min(a + BLOCK_FRAMES, len(times))
+        g = find_gaps(cam, times[a:b], col_tp[a:b] >= 0, {c: per_cam[c] for c in cams}, rig, persons)
+        g.frame_g = g.frame_g + a
+        parts.append(g)
+    return Gaps(*(np.concatenate([getattr(g, f) for g in parts]) for f in ("frame_g", "person_g", "xy_g332",
+                                                                          "views_g")))
+
+
+def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
+    """Fill every camera's gaps (module docstring); ``enabled`` False removes an earlier fill."""
+    import shutil
+
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.clock import ClockModel
+    from mamma_kit.core.filled import FILL_IDENTITIES, identities_digest
+    from mamma_kit.core.identities import read_identities, write_identities
+    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.filling.gaps import persons_per_frame
+    from mamma_kit.filling.look import look
+    from mamma_kit.keypoints.estimator import PoseEstimator
+    from mamma_kit.landmarks.stage import landmarks_of
+    from mamma_kit.video import VideoReader
+
+    t0 = time.perf_counter()
+    if not enabled:
+        shutil.rmtree(ws.fill_dir, ignore_errors=True)
+        return {"stage": "fill", "skipped": True, "reason": "off (capture.toml [settings.fill] enabled = false)"}
+    for p, run in ((ws.identities, "match"), (ws.calibration, "calibrate")):
+        if not p.is_file():
+            raise UserError(f"the fill needs {p.name}, and {ws.root} has none", f"run `mamma-kit {run} WORKSPACE` first")
+    ident = read_identities(ws.identities)
+    cap = ws.load_capture()
+    if cap.stage_settings("landmarks").get("source", "net") == "gt":
+        shutil.rmtree(ws.fill_dir, ignore_errors=True)
+        return {"stage": "fill", "skipped": True, "reason": "ground-truth landmarks: no network to read new tracks"}
+    cams = [c for c in ident.cameras if c in cap.cameras and ws.mask_file(c).is_file()
+            and ws.keypoints_file(c).is_file()]
+    options = cap.stage_settings("landmarks")
+    settings = {"landmarks": {k: str(v) for k, v in sorted(options.items())}}
+    inputs = [p for p in (ws.identities, ws.calibration, ws.timing) if p.is_file()] + [p for c in cams for p in
+                                                           (ws.mask_file(c), ws.keypoints_file(c), cap.cameras[c].video)]
+    manifest = StageManifest(ws.cache_dir, "fill", ws.root)
+    state = manifest.check(inputs, settings)
+    if state.fresh and not force and (ws.fill_dir / FILL_IDENTITIES).is_file():
+        log.info("fill: up to date (inputs unchanged); skipped (--force recomputes)")
+        return {"stage": "fill", "skipped": True, "reason": state.reason, **manifest.load().get("summary", {})}
+    rig, _ = read_calibration(ws.calibration)
+    # without timing.toml the cameras are taken as synchronised, as the match and the fit take them
+    clocks = read_timing(ws.timing)[0] if ws.timing.is_file() else {c: ClockModel() for c in cams}
+    persons = ident.person_ids
+    masks, per_cam = {}, {}
+    for c in cams:
+        masks[c] = MaskTracks.load(ws.mask_file(c))
+        kt = KeypointTracks.load(ws.keypoints_file(c))
+        times = clocks[c].to_ref(kt.frame_times)
+        col_tp = persons_per_frame(ident.person_frames(c, kt.track_ids, times), masks[c].present, persons)
+        per_cam[c] = (times, col_tp, kt.xy, kt.visibility * kt.presence)
+    est = PoseEstimator()
+    shutil.rmtree(ws.fill_dir, ignore_errors=True)
+    outputs, per_camera = [], []
+    for c in cams:
+        gaps = _camera_gaps(c, cams, per_cam, rig, persons)
+        entry = cap.cameras[c]
+        found = look(est, VideoReader(entry.video, entry.rotation), masks[c], gaps, f"fill {c}")
+        row = {"camera": c, "gaps": len(gaps), "found": len(found), "tracks": 0}
+        if found:
+            mt, kt, person_of = new_tracks(c, masks[c], found)
+            lt = landmarks_of(ws, c, mt, kt, options)
+            for kind, obj in (("masks", mt), ("keypoints", kt), ("landmarks", lt)):
+                outputs.append(obj.save(ws.fill_file(kind, c)))
+            ident.assignments.setdefault(c, {}).update(person_of)
+            for tid in person_of:
+                ident.track_frames[(c, tid)] = int(mt.present[:, list(mt.track_ids).index(tid)].sum())
+            row["tracks"] = len(person_of)
+        per_camera.append(row)
+        log.info(f"fill {c}: {row['found']} of {row['gaps']} gaps found, {row['tracks']} tracks")
+    ident.settings = {**ident.settings, "fill": {"from_identities": identities_digest(ws.identities),
+                                                 "person_view_frames": sum(r["found"] for r in per_camera)}}
+    outputs.append(write_identities(ws.fill_dir / FILL_IDENTITIES, ident))
+    secs = time.perf_counter() - t0
+    summary = {"stage": "fill", "skipped": False, "cameras": per_camera, "seconds": round(secs, 2),
+               "found": sum(r["found"] for r in per_camera), "gaps": sum(r["gaps"] for r in per_camera)}
+    manifest.record(inputs, settings, outputs, summary, secs)
+    return summary
