@@ -6,7 +6,7 @@ has. Here the views help each other: where a person of the capture has no track 
 other cameras see them (filling/gaps.py), BlazePose looks at the place their skeleton projects to
 (filling/look.py); what it finds becomes new tracks of that person in that camera. Their keypoints
 are the model's points (no second run), their landmarks come from the landmarks stage's network
-(landmarks.stage.landmarks_of). Written: fill/masks/<cam>.npz, fill/keypoints/<cam>.npz,
+(landmarks.stage.LandmarksReader). Written: fill/masks/<cam>.npz, fill/keypoints/<cam>.npz,
 fill/landmarks/<cam>.npz (only the new tracks, ids after the camera's own) and fill/identities.json
 (the match's identities with the new tracks); the stages after read them through core.filled.
 """
@@ -87,7 +87,7 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
     from mamma_kit.filling.gaps import persons_per_frame
     from mamma_kit.filling.look import look
     from mamma_kit.keypoints.estimator import PoseEstimator
-    from mamma_kit.landmarks.stage import landmarks_of
+    from mamma_kit.landmarks.stage import LandmarksReader
     from mamma_kit.video import VideoReader
 
     t0 = time.perf_counter()
@@ -126,7 +126,7 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
         per_cam[c] = (times, col_tp, kt.xy, kt.visibility * kt.presence)
     est = PoseEstimator()
     shutil.rmtree(ws.fill_dir, ignore_errors=True)
-    outputs, per_camera = [], []
+    outputs, per_camera, read_landmarks = [], [], None
     for c in cams:
         gaps = _camera_gaps(c, cams, per_cam, rig, persons)
         entry = cap.cameras[c]
@@ -134,7 +134,9 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
         row = {"camera": c, "gaps": len(gaps), "found": len(found), "tracks": 0}
         if found:
             mt, kt, person_of = new_tracks(c, masks[c], found)
-            lt = landmarks_of(ws, c, mt, kt, options)
+            if read_landmarks is None:
+                read_landmarks = LandmarksReader(options)
+            lt = read_landmarks(ws, c, mt, kt)
             for kind, obj in (("masks", mt), ("keypoints", kt), ("landmarks", lt)):
                 outputs.append(obj.save(ws.fill_file(kind, c)))
             ident.assignments.setdefault(c, {}).update(person_of)

@@ -146,27 +146,37 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
     return summary
 
 
-def landmarks_of(ws, cam: str, masks, keypoints, options: dict | None = None, device: str = "cpu"):
+class LandmarksReader:
     """Landmarks of tracks that are not the workspace's masks file (those `mamma-kit fill` adds), with
     the network and settings the stage would use (``options``: capture.toml's [settings.landmarks]):
-    the same crops, hand refinement, contact network and smoothing, so they read like the rest."""
-    from mamma_kit.core.reproducible import one_thread
-    from mamma_kit.landmarks.hands import hand_refiner
-    from mamma_kit.landmarks.inference import Predictor, run_camera
-    from mamma_kit.landmarks.smooth import SMOOTH_S, smooth_landmarks
-    from mamma_kit.landmarks.weights import load_model
+    the same crops, hand refinement, contact network and smoothing, so they read like the rest. The
+    networks load once, for every camera read after."""
 
-    opts = options or {}
-    loaded = load_model(opts.get("weights"), opts.get("arch"), device)
-    refiner = hand_refiner(loaded.landmark_set, opts.get("hands", "auto"))
-    contact = contact_network(loaded, opts.get("contact", "auto"), device)
-    entry = ws.load_capture().cameras[cam]
-    with one_thread():
-        lt, _ = run_camera(Predictor(loaded, device), cam, masks, entry.video, int(opts.get("batch", 8)),
-                           keypoints=keypoints, hands=refiner, contact=contact and Predictor(contact, device),
-                           rotation=entry.rotation)
-    smooth_s = float(SMOOTH_S if opts.get("smooth_s") is None else opts["smooth_s"])
-    return smooth_landmarks(lt, smooth_s) if smooth_s > 0 else lt
+    def __init__(self, options: dict | None = None, device: str = "cpu"):
+        from mamma_kit.landmarks.hands import hand_refiner
+        from mamma_kit.landmarks.inference import Predictor
+        from mamma_kit.landmarks.smooth import SMOOTH_S
+        from mamma_kit.landmarks.weights import load_model
+
+        self.opts = options or {}
+        loaded = load_model(self.opts.get("weights"), self.opts.get("arch"), device)
+        self.pred = Predictor(loaded, device)
+        self.refiner = hand_refiner(loaded.landmark_set, self.opts.get("hands", "auto"))
+        contact = contact_network(loaded, self.opts.get("contact", "auto"), device)
+        self.contact = contact and Predictor(contact, device)
+        self.smooth_s = float(SMOOTH_S if self.opts.get("smooth_s") is None else self.opts["smooth_s"])
+
+    def __call__(self, ws, cam: str, masks, keypoints):
+        from mamma_kit.core.reproducible import one_thread
+        from mamma_kit.landmarks.inference import run_camera
+        from mamma_kit.landmarks.smooth import smooth_landmarks
+
+        entry = ws.load_capture().cameras[cam]
+        with one_thread():
+            lt, _ = run_camera(self.pred, cam, masks, entry.video, int(self.opts.get("batch", 8)),
+                               keypoints=keypoints, hands=self.refiner, contact=self.contact,
+                               rotation=entry.rotation)
+        return smooth_landmarks(lt, self.smooth_s) if self.smooth_s > 0 else lt
 
 
 _PREDICTORS: dict = {}
