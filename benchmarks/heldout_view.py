@@ -4,8 +4,8 @@ A real recording has no ground-truth bodies, but every camera is a witness the o
 see. For each camera c of the capture (default: the two-person recording in shared/real/, with
 its Qualisys calibration and one shared clock):
 
-1. a copy of the workspace (hard links) where `mamma-kit match` and `mamma-kit fit` use only the
-   other cameras (`--cameras` / `--camera-list`);
+1. a copy of the workspace (hard links) where `mamma-kit match`, `fill` and `fit` use only the
+   other cameras (`--cameras` / `--camera-list`), as capture-to-smplx runs them;
 2. the fitted bodies' 33 BlazePose points (the fit's keypoint regressor applied to the fitted
    vertices) projected into c, against BlazePose's own detections in c for the same person (c's
    tracks are tied to persons by the match of all cameras);
@@ -106,7 +106,8 @@ def heldout_copy(ws, cam: str, root: Path, fit_hands: bool = True):
     if dst.exists():
         shutil.rmtree(dst)
     shutil.copytree(ws.root, dst, copy_function=os.link,
-                    ignore=shutil.ignore_patterns("smplx", "report", "identities.json", "fit-*.json", "match.json"))
+                    ignore=shutil.ignore_patterns("smplx", "report", "fill", "identities.json", "fit-*.json", "match.json",
+                                                  "fill.json"))
     return Workspace(dst)
 
 
@@ -180,6 +181,7 @@ def evaluate_camera(ws, cam: str, root: Path, model, reg, threads: int, reuse: b
     else:
         hw = heldout_copy(ws, cam, root, fit_hands)
         cli("match", hw.root, "--cameras", ",".join(others), "--no-plots", "-q")
+        cli("fill", hw.root, "-q")  # as capture-to-smplx runs it: what a view lost, from the other two
         cli("fit", hw.root, "--camera-list", ",".join(others), "--threads", threads, "-q",
             *([] if fit_hands else ["--no-hand-points"]))
     fit_s = time.perf_counter() - t0

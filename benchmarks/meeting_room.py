@@ -165,10 +165,10 @@ def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.n
     person inside this camera's image (posGT), i.e. whether the person is to be seen there."""
     import cv2
 
-    from mamma_kit.core.tracks import KeypointTracks, MaskTracks
+    from mamma_kit.core.filled import load_keypoints, load_masks
 
-    kt = KeypointTracks.load(ws.keypoints_file(cam))
-    mt = MaskTracks.load(ws.mask_file(cam))
+    # each view's tracks with those `mamma-kit fill` added, as the fit reads them
+    kt, mt = load_keypoints(ws, cam), load_masks(ws, cam)
     times_g, truth = truth_mouths()
     t_ref = clocks[cam].to_ref(kt.frame_times)
     c = rig[cam]
@@ -206,14 +206,14 @@ def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.n
 def identity_figures(ws, rig, clocks, ident) -> dict:
     """Per camera: the person-frames the recording annotates that some assigned track follows
     (with the right identity), and tracks or frames on no one."""
-    from mamma_kit.core.tracks import KeypointTracks
+    from mamma_kit.core.filled import load_keypoints
 
     out = {}
     pairs = []  # (fitted person, true person) per assigned, labelled track-frame
     per_cam = {}
     for cam in CAMS:
         label, tids, seen = track_truth(ws, rig, cam, clocks)
-        kt = KeypointTracks.load(ws.keypoints_file(cam))
+        kt = load_keypoints(ws, cam)
         person = np.where(kt.valid, ident.person_frames(cam, tids, clocks[cam].to_ref(kt.frame_times)), -1)
         per_cam[cam] = (label, person, seen)
         m = (person >= 0) & (label >= 0)
@@ -257,7 +257,7 @@ def main() -> None:
 
     from mamma_kit.core import log
     from mamma_kit.core.calibfile import write_calibration
-    from mamma_kit.core.identities import read_identities
+    from mamma_kit.core.filled import load_identities
     from mamma_kit.core.timingfile import read_timing
     from mamma_kit.core.tracks import MaskTracks
     from mamma_kit.core.workspace import Workspace
@@ -287,7 +287,7 @@ def main() -> None:
         mt = MaskTracks.load(ws.mask_file(c))
         frames = [int(n) for n in mt.present.sum(axis=0)]
         print(f"{c}: {len(frames)} tracks kept, frames each {frames}")
-    ident = read_identities(ws.identities)
+    ident = load_identities(ws)
     views = {p: ident.views_of(p) for p in ident.person_ids}
     print(f"match: {len(views)} persons; views per person: " + "; ".join(f"{p}: {','.join(v)}" for p, v in views.items()))
 

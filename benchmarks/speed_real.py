@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 STAGES = [("track", ["--backend", "pose", "--people", "2"]), ("keypoints", []), ("landmarks", []), ("match", []),
-          ("fit", [])]
+          ("fill", []), ("fit", [])]
 
 
 def decode_floor(videos: list[Path]) -> tuple[float, int]:
