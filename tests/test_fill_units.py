@@ -21,8 +21,7 @@ def test_a_missing_person_projects_where_they_are():
     others = {}
     for cam in rig:
         xy = cam.project(X_tpj3.reshape(-1, 3)).reshape(T, P, 33, 2)
-        col_tp = np.tile(np.arange(P), (T, 1))  # track k shows person k
-        others[cam.name] = (times, col_tp, xy, np.ones((T, P, 33)))
+        others[cam.name] = (times, xy, np.ones((T, P, 33)))  # each person's points in that view
     covered = np.ones((T, P), bool)
     covered[3:7, 1] = False
     g = find_gaps("cam0", times, covered, others, rig, [0, 1, 2])

@@ -66,3 +66,33 @@ def test_contact_is_averaged_over_neighbouring_landmarks_and_visibility_over_tim
     assert np.array_equal(out.xy, lt.xy) and np.array_equal(out.floor_contact, lt.floor_contact)
     same = smooth_probabilities(lt, 0.0, None)
     assert np.array_equal(same.contact, lt.contact) and np.array_equal(same.visibility, lt.visibility)
+
+
+def test_rows_smoothed_as_they_stream_equal_the_whole_take_smoothed():
+    """The landmarks stage smooths rows as they come (RowSmoother): to the bit what smoothing the
+    whole take at once gives, whatever the batches and irregular frame times."""
+    from mamma_kit.core.tracks import LandmarkTracks
+    from mamma_kit.landmarks.smooth import RowSmoother, landmark_neighbours, smooth_probabilities
+
+    rng = np.random.default_rng(1)
+    T, K, L = 120, 5, 32
+    times = np.cumsum(rng.uniform(0.03, 0.04, T))
+    lt = LandmarkTracks.empty("c", (100, 100), times, np.arange(K), L)
+    lt.valid[:] = rng.random((T, K)) < 0.6
+    lt.visibility[:] = np.where(lt.valid[..., None], rng.random((T, K, L)), 0)
+    lt.contact[:] = np.where(lt.valid[..., None], rng.random((T, K, L)), 0)
+    nn = landmark_neighbours(rng.random((L, 3)), 4)
+    ref = smooth_probabilities(lt, 0.1, nn)
+    sm = RowSmoother(times, 0.1, nn)
+    t_n, k_n = np.nonzero(lt.valid)
+    out, i = [], 0
+    while i < len(t_n):
+        s = slice(i, i + int(rng.integers(1, 12)))
+        i = s.stop
+        out.append(sm.push(t_n[s], k_n[s], {"visibility": lt.visibility[t_n[s], k_n[s]],
+                                            "contact": lt.contact[t_n[s], k_n[s]]}, complete_before=t_n[s][-1]))
+    out.append(sm.finish())
+    assert np.array_equal(np.concatenate([o[0] for o in out]), t_n)
+    assert np.array_equal(np.concatenate([o[1] for o in out]), k_n)
+    for key in ("visibility", "contact"):
+        assert np.array_equal(np.concatenate([o[2][key] for o in out]), getattr(ref, key)[t_n, k_n])

@@ -39,6 +39,20 @@ def _with_fill(ws: Workspace, kind: str, cam: str, base_path: Path, cls):
     return base
 
 
+def track_files(ws: Workspace, kind: str, cam: str) -> list:
+    """The camera's keypoint or landmark files as core.trackrows.TrackFile, to be read a window at a
+    time: its own, then the fill's (its tracks' columns follow the camera's own, as in load_*)."""
+    from mamma_kit.core.trackrows import TrackFile
+
+    cls, base = {"keypoints": (KeypointTracks, ws.keypoints_file(cam)),
+                 "landmarks": (LandmarkTracks, ws.landmarks_file(cam))}[kind]
+    files = [TrackFile(base, cls, f"{kind[:-1]} file")]
+    extra = ws.fill_file(kind, cam)
+    if extra.is_file() and fill_is_current(ws):
+        files.append(TrackFile(extra, cls, f"{kind[:-1]} file"))
+    return files
+
+
 def load_masks(ws: Workspace, cam: str) -> MaskTracks:
     return _with_fill(ws, "masks", cam, ws.mask_file(cam), MaskTracks)
 

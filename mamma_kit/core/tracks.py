@@ -1,4 +1,4 @@
-"""Per-view person tracks: masks/<cam>.npz and landmarks/<cam>.npz.
+"""Per-view person tracks: masks/<cam>.npz, keypoints/<cam>.npz and landmarks/<cam>.npz.
 
 Both files index frames by the camera's own frame timestamps (``frame_times``, float64 s,
 container time) and people by per-view ``track_ids`` (K,). Ground truth in synthetic
@@ -11,6 +11,11 @@ masks/<cam>.npz
     rle_counts (N,) uint32 and rle_index (T, K, 2) int64 [start, length] into rle_counts:
     the mask flattened row-major, as alternating run lengths starting with a run of 0s
     (length 0 = no mask).
+
+In memory, landmarks and keypoints are frames x tracks arrays (of a take, or of a window of one);
+on disk they are rows, one per (frame, track) a stage looked at (core/trackrows.py: row_frame and
+row_track (N,), each array below with N rows in place of (T, K)), so a file grows with the
+person-frames there are, not with frames x tracks.
 
 landmarks/<cam>.npz  (L = 512)
     image_size, frame_times, track_ids as above; valid (T, K) bool;
@@ -90,6 +95,15 @@ def rle_decode(counts: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
     return np.repeat(values, counts).reshape(h, w)
 
 
+def encode_mask(mask_hw: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """A mask as it is kept in a track file: its runs (rle_encode) and box x1, y1, x2, y2 (4,); None if empty."""
+    m = np.asarray(mask_hw, bool)
+    if not m.any():
+        return None
+    ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
+    return rle_encode(m), np.array([xs[0], ys[0], xs[-1] + 1, ys[-1] + 1], np.float32)
+
+
 def rle_area(counts: np.ndarray) -> int:
     return int(np.asarray(counts, np.int64)[1::2].sum())
 
@@ -135,9 +149,10 @@ class MaskTracks:
 
     @classmethod
     def from_masks(cls, camera: str, image_size: tuple[int, int], frame_times: np.ndarray,
-                   track_ids: np.ndarray, masks: dict[tuple[int, int], np.ndarray],
+                   track_ids: np.ndarray, masks: dict[tuple[int, int], np.ndarray | tuple],
                    scores: dict[tuple[int, int], float] | None = None, producer: dict | None = None) -> "MaskTracks":
-        """Build from {(frame index, column): bool mask (H, W)}; boxes come from the masks."""
+        """Build from {(frame index, column): bool mask (H, W), or encode_mask's (runs, box)}; boxes
+        come from the masks."""
         T, K = len(frame_times), len(track_ids)
         boxes = np.full((T, K, 4), np.nan, np.float32)
         sc = np.zeros((T, K), np.float32)
@@ -145,14 +160,13 @@ class MaskTracks:
         chunks, n = [], 0
         for (t, k) in sorted(masks):
             m = masks[(t, k)]
-            if m is None or not m.any():
+            enc = m if isinstance(m, tuple) or m is None else encode_mask(m)
+            if enc is None:
                 continue
-            counts = rle_encode(m)
+            counts, boxes[t, k] = enc
             index[t, k] = (n, len(counts))
             chunks.append(counts)
             n += len(counts)
-            ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
-            boxes[t, k] = (xs[0], ys[0], xs[-1] + 1, ys[-1] + 1)
             sc[t, k] = 1.0 if scores is None else scores.get((t, k), 1.0)
         counts_all = np.concatenate(chunks).astype(np.uint32) if chunks else np.zeros(0, np.uint32)
         return cls(camera, (int(image_size[0]), int(image_size[1])), np.asarray(frame_times, np.float64),
@@ -197,38 +211,40 @@ class LandmarkTracks:
     source: str = ""
     producer: dict = field(default_factory=dict)
 
+    @staticmethod
+    def cell_spec(n: int) -> dict:
+        """Each per-cell array: (shape after (T, K), dtype, an empty cell's value); n landmarks."""
+        return {"valid": ((), bool, False), "xy": ((n, 2), np.float32, np.nan), "sigma": ((n, 2), np.float32, np.nan),
+                "visibility": ((n,), np.float32, 0.0), "contact": ((n,), np.float32, 0.0),
+                "floor_contact": ((n,), np.float32, 0.0)}
+
     @property
     def n_landmarks(self) -> int:
         return self.xy.shape[2]
 
+    n_points = n_landmarks
+
     @classmethod
     def empty(cls, camera: str, image_size, frame_times, track_ids, n_landmarks: int = 512,
               landmark_set: str = "", source: str = "") -> "LandmarkTracks":
-        T, K, L = len(frame_times), len(track_ids), n_landmarks
-        nan2 = np.full((T, K, L, 2), np.nan, np.float32)
+        from mamma_kit.core.trackrows import empty_cells
+
+        cells = empty_cells(cls.cell_spec(n_landmarks), len(frame_times), len(track_ids))
         return cls(camera, (int(image_size[0]), int(image_size[1])), np.asarray(frame_times, np.float64),
-                   np.asarray(track_ids, np.int64), np.zeros((T, K), bool), nan2, nan2.copy(),
-                   np.zeros((T, K, L), np.float32), np.zeros((T, K, L), np.float32),
-                   np.zeros((T, K, L), np.float32), landmark_set, source)
+                   np.asarray(track_ids, np.int64), landmark_set=landmark_set, source=source, **cells)
 
     def save(self, path: str | Path) -> Path:
-        return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
-                         frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,
-                         xy=self.xy.astype(np.float32, copy=False), sigma=self.sigma.astype(np.float32, copy=False),
-                         visibility=self.visibility.astype(np.float32, copy=False), contact=self.contact.astype(np.float32, copy=False),
-                         floor_contact=self.floor_contact.astype(np.float32, copy=False),
-                         landmark_set=np.array(self.landmark_set), source=np.array(self.source),
-                         producer=_producer_str(self.producer))
+        """landmarks/<cam>.npz as rows (core/trackrows.py): the cells that hold a detection."""
+        from mamma_kit.core.trackrows import save_rows
+
+        return save_rows(self, path)
 
     @classmethod
     def load(cls, path: str | Path) -> "LandmarkTracks":
-        d = read_npz(path, "landmark file")
-        _require(d, path, ("image_size", "frame_times", "track_ids", "valid", "xy", "sigma", "visibility",
-                           "contact", "floor_contact"))
-        return cls(str(d.get("camera", Path(path).stem)), tuple(int(v) for v in d["image_size"]),
-                   d["frame_times"], d["track_ids"], d["valid"].astype(bool), d["xy"], d["sigma"],
-                   d["visibility"], d["contact"], d["floor_contact"], str(d.get("landmark_set", "")),
-                   str(d.get("source", "")), json.loads(str(d.get("producer", "{}"))))
+        """A whole landmark file (core/trackrows.TrackFile reads a window of frames)."""
+        from mamma_kit.core.trackrows import load_tracks
+
+        return load_tracks(cls, path, "landmark file")
 
 
 # ---- keypoints --------------------------------------------------------------------------
@@ -252,43 +268,46 @@ class KeypointTracks:
     hand_presence: np.ndarray | None = None  # (T, K, 2)
     hand_right: np.ndarray | None = None  # (T, K, 2) the hand model's handedness (1: a right hand; NaN: not read)
 
+    @staticmethod
+    def cell_spec(n: int) -> dict:
+        """Each per-cell array: (shape after (T, K), dtype, an empty cell's value); n body points."""
+        return {"valid": ((), bool, False), "xy": ((n, 2), np.float32, np.nan), "z": ((n,), np.float32, np.nan),
+                "visibility": ((n,), np.float32, 0.0), "presence": ((n,), np.float32, 0.0),
+                "score": ((), np.float32, 0.0), "hand_xy": ((2, N_HAND_POINTS, 2), np.float32, np.nan),
+                "hand_presence": ((2,), np.float32, 0.0), "hand_right": ((2,), np.float32, np.nan)}
+
+    @property
+    def n_points(self) -> int:
+        return self.xy.shape[2]
+
     def __post_init__(self):
         T, K = self.valid.shape
-        if self.hand_xy is None:
-            self.hand_xy = np.full((T, K, 2, N_HAND_POINTS, 2), np.nan, np.float32)
-        if self.hand_presence is None:
-            self.hand_presence = np.zeros((T, K, 2), np.float32)
-        if self.hand_right is None:
-            self.hand_right = np.full((T, K, 2), np.nan, np.float32)
+        for name in ("hand_xy", "hand_presence", "hand_right"):
+            if getattr(self, name) is None:
+                shape, dtype, fill = self.cell_spec(1)[name]
+                setattr(self, name, np.full((T, K, *shape), fill, dtype))
 
     @classmethod
     def empty(cls, camera: str, image_size, frame_times, track_ids, n_points: int = 33,
               model: str = "") -> "KeypointTracks":
-        T, K, P = len(frame_times), len(track_ids), n_points
+        from mamma_kit.core.trackrows import empty_cells
+
+        cells = empty_cells(cls.cell_spec(n_points), len(frame_times), len(track_ids))
         return cls(camera, (int(image_size[0]), int(image_size[1])), np.asarray(frame_times, np.float64),
-                   np.asarray(track_ids, np.int64), np.zeros((T, K), bool), np.full((T, K, P, 2), np.nan, np.float32),
-                   np.full((T, K, P), np.nan, np.float32), np.zeros((T, K, P), np.float32),
-                   np.zeros((T, K, P), np.float32), np.zeros((T, K), np.float32), model)
+                   np.asarray(track_ids, np.int64), model=model, **cells)
 
     def save(self, path: str | Path) -> Path:
-        return write_npz(path, camera=np.array(self.camera), image_size=np.asarray(self.image_size, np.int64),
-                         frame_times=self.frame_times, track_ids=self.track_ids, valid=self.valid,
-                         xy=self.xy.astype(np.float32, copy=False), z=self.z.astype(np.float32, copy=False),
-                         visibility=self.visibility.astype(np.float32, copy=False), presence=self.presence.astype(np.float32, copy=False),
-                         score=self.score.astype(np.float32, copy=False), model=np.array(self.model),
-                         hand_xy=self.hand_xy.astype(np.float32, copy=False), hand_presence=self.hand_presence.astype(np.float32, copy=False),
-                         hand_right=self.hand_right.astype(np.float32, copy=False),
-                         producer=_producer_str(self.producer))
+        """keypoints/<cam>.npz as rows (core/trackrows.py): the cells the model looked at."""
+        from mamma_kit.core.trackrows import save_rows
+
+        return save_rows(self, path)
 
     @classmethod
     def load(cls, path: str | Path) -> "KeypointTracks":
-        d = read_npz(path, "keypoint file")
-        _require(d, path, ("image_size", "frame_times", "track_ids", "valid", "xy", "z", "visibility", "presence",
-                           "score"))
-        return cls(str(d.get("camera", Path(path).stem)), tuple(int(v) for v in d["image_size"]),
-                   d["frame_times"], d["track_ids"], d["valid"].astype(bool), d["xy"], d["z"], d["visibility"],
-                   d["presence"], d["score"], str(d.get("model", "")), json.loads(str(d.get("producer", "{}"))),
-                   d.get("hand_xy"), d.get("hand_presence"), d.get("hand_right"))
+        """A whole keypoint file (core/trackrows.TrackFile reads a window of frames)."""
+        from mamma_kit.core.trackrows import load_tracks
+
+        return load_tracks(cls, path, "keypoint file")
 
 
 def _require(d: dict, path, keys) -> None:

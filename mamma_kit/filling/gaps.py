@@ -49,13 +49,31 @@ def persons_per_frame(person_tk: np.ndarray, present_tk: np.ndarray, persons: li
     return out
 
 
+def person_points(kf, col_tp: np.ndarray, block: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    """Each person's keypoints in a camera: xy (T, P, 33, 2) and weight (T, P, 33) = visibility x
+    presence of the track column col_tp (T, P) names (persons_per_frame; NaN / 0 where -1), read from
+    the keypoints file ``kf`` (core.trackrows.TrackFile) a block of frames at a time."""
+    T, P = col_tp.shape
+    xy = np.full((T, P, 33, 2), np.nan, np.float32)
+    w = np.zeros((T, P, 33), np.float32)
+    for a in range(0, T, block):
+        b = min(a + block, T)
+        kt = kf.window(a, b, keys=("xy", "visibility", "presence"))
+        t_i, p_i = np.nonzero(col_tp[a:b] >= 0)
+        k_i = col_tp[a:b][t_i, p_i]
+        xy[a + t_i, p_i] = kt.xy[t_i, k_i]
+        w[a + t_i, p_i] = kt.visibility[t_i, k_i] * kt.presence[t_i, k_i]
+    return xy, w
+
+
 def find_gaps(cam: str, times_ref_t: np.ndarray, covered_tp: np.ndarray, others: dict, rig: Rig,
               persons: list[int]) -> Gaps:
     """The gaps of camera ``cam``.
 
     times_ref_t (T,): its frames on the reference clock; covered_tp (T, P): whether one of its tracks
-    shows each person then. ``others``: camera -> (times_ref (T2,), column_tp (T2, P) from
-    persons_per_frame, keypoints xy (T2, K2, 33, 2), weight (T2, K2, 33) = visibility x presence).
+    shows each person then. ``others``: camera -> (times_ref (T2,), each person's keypoints there
+    xy (T2, P, 33, 2) (NaN where no track shows them) and weight (T2, P, 33) = visibility x presence
+    (0 there): person_points).
     """
     T, P = covered_tp.shape
     names = [c for c in others if c != cam]
@@ -63,13 +81,11 @@ def find_gaps(cam: str, times_ref_t: np.ndarray, covered_tp: np.ndarray, others:
     xy_ctp = np.full((C, T, P, 33, 2), np.nan)
     w_ctp = np.zeros((C, T, P, 33))
     for i, c in enumerate(names):
-        times2, col_tp, xy2, w2 = others[c]
+        times2, xy2, w2 = others[c]
         f2 = nearest_frames(times_ref_t, times2)  # -1 farther than half a frame
         ok = f2 >= 0
-        col = np.where(ok[:, None], col_tp[np.clip(f2, 0, None)], -1)  # (T, P)
-        t_i, p_i = np.nonzero(col >= 0)
-        xy_ctp[i, t_i, p_i] = xy2[f2[t_i], col[t_i, p_i]]
-        w_ctp[i, t_i, p_i] = np.nan_to_num(w2[f2[t_i], col[t_i, p_i]])
+        xy_ctp[i, ok] = xy2[f2[ok]]
+        w_ctp[i, ok] = np.nan_to_num(w2[f2[ok]])
     views_tp = (w_ctp.max(-1) > 0).sum(0)
     t_g, p_g = np.nonzero(~covered_tp & (views_tp >= MIN_VIEWS))
     if not len(t_g) or C < MIN_VIEWS:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mamma_kit.core import log
-from mamma_kit.core.tracks import MaskTracks
+from mamma_kit.core.tracks import MaskTracks, encode_mask
 from mamma_kit.filling.gaps import Gaps
 from mamma_kit.masks.pose import REACH_SHARE, SEG_THRESHOLD, limb_distance, skeleton_distance, torso_overlap
 
@@ -35,11 +35,12 @@ SAME_TORSO = 0.2
 
 @dataclass
 class Found:
-    """A gap where the person was found: frame, person, mask and the model's 33 points."""
+    """A gap where the person was found: frame, person, mask (core.tracks.encode_mask: runs and box,
+    so a long take's finds do not hold full frames) and the model's 33 points."""
 
     frame: int
     person: int
-    mask_hw: np.ndarray
+    mask: tuple
     points_p5: np.ndarray  # (33, 5) x, y, z, visibility, presence
     score: float
     agree: float  # limb-joint distance to the projection / ROI side
@@ -115,5 +116,7 @@ def look(est, reader, masks: MaskTracks, gaps: Gaps, label: str) -> list[Found]:
         blank = np.logical_or.reduce([masks.mask(f, int(k)) for k in cols]) if len(cols) else None
         for g, r in zip(g_idx, look_in_frame(est, img, gaps.xy_g332[g_idx], blank)):
             if r is not None:
-                found.append(Found(f, int(gaps.person_g[g]), r[2], r[3], r[0], r[1]))
+                enc = encode_mask(r[2])
+                if enc is not None:
+                    found.append(Found(f, int(gaps.person_g[g]), enc, r[3], r[0], r[1]))
     return found

@@ -48,7 +48,7 @@ def new_tracks(cam: str, masks: MaskTracks, found: list) -> tuple[MaskTracks, Ke
     first_id = int(masks.track_ids.max()) + 1 if len(masks.track_ids) else 0
     ids = first_id + np.arange(len(runs), dtype=np.int64)
     mt = MaskTracks.from_masks(cam, masks.image_size, masks.frame_times, ids,
-                               {(fd.frame, k): fd.mask_hw for k, (_, items) in enumerate(runs) for fd in items},
+                               {(fd.frame, k): fd.mask for k, (_, items) in enumerate(runs) for fd in items},
                                {(fd.frame, k): fd.score for k, (_, items) in enumerate(runs) for fd in items},
                                producer("fill"))
     kt = KeypointTracks.empty(cam, masks.image_size, masks.frame_times, mt.track_ids, model="blazepose-ghum-full")
@@ -61,14 +61,14 @@ def new_tracks(cam: str, masks: MaskTracks, found: list) -> tuple[MaskTracks, Ke
     return mt, kt, {int(mt.track_ids[k]): int(p) for k, (p, _) in enumerate(runs)}
 
 
-def _camera_gaps(cam: str, cams: list[str], per_cam: dict, rig, persons: list[int]):
+def _camera_gaps(cam: str, cams: list[str], per_cam: dict, covered_tp: np.ndarray, rig, persons: list[int]):
     from mamma_kit.filling.gaps import Gaps, find_gaps
 
-    times, col_tp, _, _ = per_cam[cam]
+    times = per_cam[cam][0]
     parts = []
     for a in range(0, len(times), BLOCK_FRAMES):
         b = min(a + BLOCK_FRAMES, len(times))
-        g = find_gaps(cam, times[a:b], col_tp[a:b] >= 0, {c: per_cam[c] for c in cams}, rig, persons)
+        g = find_gaps(cam, times[a:b], covered_tp[a:b], {c: per_cam[c] for c in cams}, rig, persons)
         g.frame_g = g.frame_g + a
         parts.append(g)
     return Gaps(*(np.concatenate([getattr(g, f) for g in parts]) for f in ("frame_g", "person_g", "xy_g332",
@@ -84,7 +84,8 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
     from mamma_kit.core.filled import FILL_IDENTITIES, identities_digest
     from mamma_kit.core.identities import read_identities, write_identities
     from mamma_kit.core.timingfile import read_timing
-    from mamma_kit.filling.gaps import persons_per_frame
+    from mamma_kit.core.trackrows import TrackFile
+    from mamma_kit.filling.gaps import person_points, persons_per_frame
     from mamma_kit.filling.look import look
     from mamma_kit.keypoints.estimator import PoseEstimator
     from mamma_kit.landmarks.stage import LandmarksReader
@@ -117,18 +118,19 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
     # without timing.toml the cameras are taken as synchronised, as the match and the fit take them
     clocks = read_timing(ws.timing)[0] if ws.timing.is_file() else {c: ClockModel() for c in cams}
     persons = ident.person_ids
-    masks, per_cam = {}, {}
+    masks, per_cam, covered = {}, {}, {}
     for c in cams:
         masks[c] = MaskTracks.load(ws.mask_file(c))
-        kt = KeypointTracks.load(ws.keypoints_file(c))
-        times = clocks[c].to_ref(kt.frame_times)
-        col_tp = persons_per_frame(ident.person_frames(c, kt.track_ids, times), masks[c].present, persons)
-        per_cam[c] = (times, col_tp, kt.xy, kt.visibility * kt.presence)
+        with TrackFile(ws.keypoints_file(c), KeypointTracks, "keypoint file") as kf:
+            times = clocks[c].to_ref(kf.frame_times)
+            col_tp = persons_per_frame(ident.person_frames(c, kf.track_ids, times), masks[c].present, persons)
+            per_cam[c] = (times, *person_points(kf, col_tp))
+        covered[c] = col_tp >= 0
     est = PoseEstimator()
     shutil.rmtree(ws.fill_dir, ignore_errors=True)
     outputs, per_camera, read_landmarks = [], [], None
     for c in cams:
-        gaps = _camera_gaps(c, cams, per_cam, rig, persons)
+        gaps = _camera_gaps(c, cams, per_cam, covered[c], rig, persons)
         entry = cap.cameras[c]
         found = look(est, VideoReader(entry.video, entry.rotation), masks[c], gaps, f"fill {c}")
         row = {"camera": c, "gaps": len(gaps), "found": len(found), "tracks": 0}

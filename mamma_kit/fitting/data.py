@@ -40,7 +40,7 @@ from mamma_kit.core.calibfile import read_calibration
 from mamma_kit.core.camera import Rig
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
-from mamma_kit.core.filled import fill_inputs, load_landmarks
+from mamma_kit.core.filled import fill_inputs, track_files
 from mamma_kit.core.tracks import HAND_SURE_FLAG, N_HAND_POINTS
 from mamma_kit.core.workspace import Workspace
 
@@ -187,6 +187,56 @@ def sampled_tracks(valid_tk: np.ndarray, person_tk: np.ndarray, pindex: dict, i0
             yield pi, take, _mixer(f0, f1, w1, k)
 
 
+SAMPLE_BLOCK = 256  # output frames whose views' rows are read at once (memory: their window, not the take)
+
+
+class CameraFiles:
+    """A camera's track files (core.filled.track_files: its own, then the fill's) read as one, a
+    window of frames at a time: the tracks of every file side by side, in the files' order."""
+
+    def __init__(self, files: list):
+        self.files = files
+        self.frame_times = files[0].frame_times
+        self.track_ids = np.concatenate([f.track_ids for f in files])
+        self.image_size = files[0].header["image_size"]
+        self.n = files[0].n
+        self._offsets = np.cumsum([0] + [len(f.track_ids) for f in files])
+
+    def valid_tk(self) -> np.ndarray:
+        return np.concatenate([f.valid_tk() for f in self.files], 1)
+
+    def window(self, lo: int, hi: int, keys: tuple[str, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The columns with rows in frames lo:hi (indices into track_ids) and their arrays there."""
+        cols, parts = [], []
+        for off, f in zip(self._offsets, self.files):
+            c = f.columns_in(lo, hi)
+            cols.append(off + c)
+            parts.append(f.window(lo, hi, keys=keys, cols=c))
+        return np.concatenate(cols), {k: np.concatenate([getattr(w, k) for w in parts], 1) for k in keys}
+
+    def close(self) -> None:
+        for f in self.files:
+            f.close()
+
+
+def sample_camera(cf: CameraFiles, tr: np.ndarray, out_t: np.ndarray, person_tk: np.ndarray, pindex: dict,
+                  taken_pt: np.ndarray, keys: tuple[str, ...]):
+    """``sampled_tracks`` over a camera's files a block of output frames at a time (SAMPLE_BLOCK):
+    yields (pi, frames (n,) output frame indices, mix, arrays) where ``mix(arrays[key])`` gives that
+    stretch's values at those frames. ``tr``: the camera's frame times on the reference clock;
+    ``taken_pt`` (P, T): output frames a person already has from this camera (updated by the caller)."""
+    i0, i1, a = _bracket(tr, out_t)
+    for o0 in range(0, len(out_t), SAMPLE_BLOCK):
+        o1 = min(o0 + SAMPLE_BLOCK, len(out_t))
+        lo, hi = int(min(i0[o0:o1].min(), i1[o0:o1].min())), int(max(i0[o0:o1].max(), i1[o0:o1].max())) + 1
+        cols, arrays = cf.window(lo, hi, keys)
+        if not len(cols):
+            continue
+        for pi, take, mix in sampled_tracks(arrays["valid"], person_tk[lo:hi, cols], pindex, i0[o0:o1] - lo,
+                                            i1[o0:o1] - lo, a[o0:o1], taken_pt[:, o0:o1]):
+            yield pi, o0 + np.flatnonzero(take), mix, arrays
+
+
 def point_box_size(xy_tk_n2: np.ndarray) -> np.ndarray:
     """Larger side (px) of the box around each detection's points: (..., n, 2) -> (...)."""
     with warnings.catch_warnings():  # rows without any point are NaN (then 0): no warning for them
@@ -198,8 +248,8 @@ def point_box_size(xy_tk_n2: np.ndarray) -> np.ndarray:
 def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.ndarray, pmap: PersonMap,
                    pindex: dict, image_sizes: dict) -> tuple[np.ndarray | None, ...]:
     """kp_xy, kp_vis, kp_size, hand_xy, hand_vis (module doc) and the files read; Nones without
-    any file."""
-    from mamma_kit.core.filled import load_keypoints as load_filled_keypoints
+    any file. Each camera's file is read a block of frames at a time (sample_camera)."""
+    from mamma_kit.core.filled import track_files
 
     have = [n for n in names if ws.keypoints_file(n).is_file()]
     if not have:
@@ -212,40 +262,42 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
     hand_xy = np.zeros((C, P, T, H, 2), np.float32)
     hand_vis = np.zeros((C, P, T, H), np.float32)
     taken = np.zeros((C, P, T), bool)
+    keys = ("valid", "xy", "visibility", "presence", "hand_xy", "hand_presence")
     for ci, n in enumerate(names):
         if n not in have:
             continue
-        kt = load_filled_keypoints(ws, n)
-        if tuple(kt.image_size) != tuple(image_sizes[n]):
-            raise UserError(f"keypoints/{n}.npz is for {kt.image_size[0]}x{kt.image_size[1]} images, "
+        cf = CameraFiles(track_files(ws, "keypoints", n))
+        if tuple(cf.image_size) != tuple(image_sizes[n]):
+            raise UserError(f"keypoints/{n}.npz is for {cf.image_size[0]}x{cf.image_size[1]} images, "
                             f"calibration.toml says {image_sizes[n][0]}x{image_sizes[n][1]}",
                             "run `mamma-kit keypoints` on the calibrated videos (--force)")
-        if kt.xy.shape[2] != 33:
-            raise UserError(f"keypoints/{n}.npz holds {kt.xy.shape[2]} points per person, the fit expects 33",
+        if cf.n != 33:
+            raise UserError(f"keypoints/{n}.npz holds {cf.n} points per person, the fit expects 33",
                             "run `mamma-kit keypoints WORKSPACE --force`")
-        tr = ref_times[n](kt.frame_times)
+        tr = ref_times[n](cf.frame_times)
         if len(tr) == 0:
             continue
-        i0, i1, a = _bracket(tr, out_t)
-        size_tk = point_box_size(kt.xy)
-        person_tk = pmap.frames(n, kt.track_ids, tr)
-        for pi, take, mix in sampled_tracks(kt.valid, person_tk, pindex, i0, i1, a, taken[ci]):
-            xy_m = mix(kt.xy)
+        person_tk = pmap.frames(n, cf.track_ids, tr)
+        for pi, take, mix, kt in sample_camera(cf, tr, out_t, person_tk, pindex, taken[ci], keys):
+            if "size" not in kt:  # the box of each detection's points, once per block's window
+                kt["size"] = point_box_size(kt["xy"])
+            xy_m = mix(kt["xy"])
             bad = ~np.isfinite(xy_m).all(-1)
-            vv = np.clip(np.nan_to_num(mix(kt.visibility) * mix(kt.presence)), 0, 1)
+            vv = np.clip(np.nan_to_num(mix(kt["visibility"]) * mix(kt["presence"])), 0, 1)
             vv[bad] = 0.0
             kp_xy[ci, pi, take] = np.nan_to_num(xy_m)
             kp_vis[ci, pi, take] = vv
-            kp_size[ci, pi, take] = mix(size_tk)
+            kp_size[ci, pi, take] = mix(kt["size"])
             taken[ci, pi, take] = True
             # an unsure frame counts as a flag of -1 in the mix: a hand between a sure and an unsure
             # frame keeps a weight only when it is mostly the sure one's
-            h_xy = mix(kt.hand_xy).reshape(-1, H, 2)
-            flag = mix(np.where(kt.hand_presence > HAND_SURE_FLAG, kt.hand_presence, -1.0))  # (n, 2)
+            h_xy = mix(kt["hand_xy"]).reshape(-1, H, 2)
+            flag = mix(np.where(kt["hand_presence"] > HAND_SURE_FLAG, kt["hand_presence"], -1.0))  # (n, 2)
             hv = np.repeat(np.clip(flag, 0, 1), N_HAND_POINTS, axis=-1)
             hv[~np.isfinite(h_xy).all(-1)] = 0.0
             hand_xy[ci, pi, take] = np.nan_to_num(h_xy)
             hand_vis[ci, pi, take] = hv
+        cf.close()
     return kp_xy, kp_vis, kp_size, hand_xy, hand_vis, [ws.keypoints_file(n) for n in have]
 
 
@@ -282,8 +334,8 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         log.warn(f"fitting from {len(names)} camera: depth comes only from the body model")
     rig = rig_all.subset(names)
     clocks, reference, notes = _read_clocks(ws, names)
-    tracks = {n: load_landmarks(ws, n) for n in names}
-    L = {lt.n_landmarks for lt in tracks.values()}
+    tracks = {n: CameraFiles(track_files(ws, "landmarks", n)) for n in names}
+    L = {lt.n for lt in tracks.values()}
     if len(L) != 1 or (n_landmarks is not None and L != {n_landmarks}):
         raise UserError(f"landmark files hold {sorted(L)} landmarks, the body model has {n_landmarks}",
                         "run `mamma-kit landmarks` with weights made for this body model's landmark set")
@@ -299,7 +351,7 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
     person_of = {n: pmap.frames(n, tracks[n].track_ids, ref_times[n]) for n in names}
     views_of: dict[int, set] = {}
     for cam, person_tk in person_of.items():
-        for p in np.unique(person_tk[(person_tk >= 0) & tracks[cam].valid]):
+        for p in np.unique(person_tk[(person_tk >= 0) & tracks[cam].valid_tk()]):
             views_of.setdefault(int(p), set()).add(cam)
     # one view leaves a body's depth to the shape prior alone: not a multi-view fit
     single = sorted(p for p, v in views_of.items() if len(v) < 2) if len(names) > 1 else []
@@ -330,24 +382,24 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
     floor = np.zeros((C, P, T, L), np.float32)
     present = np.zeros((C, P, T), bool)
     pindex = {p: i for i, p in enumerate(person_ids)}
+    keys = ("valid", "xy", "sigma", "visibility", "contact", "floor_contact")
     for ci, n in enumerate(names):
-        lt = tracks[n]
         tr = ref_times[n]
         if len(tr) == 0:
             continue
-        i0, i1, a = _bracket(tr, out_t)
-        for pi, take, mix in sampled_tracks(lt.valid, person_of[n], pindex, i0, i1, a, present[ci]):
-            xy_m = mix(lt.xy)
+        for pi, take, mix, lt in sample_camera(tracks[n], tr, out_t, person_of[n], pindex, present[ci], keys):
+            xy_m = mix(lt["xy"])
             bad = ~np.isfinite(xy_m).all(-1)
             xy[ci, pi, take] = np.nan_to_num(xy_m)
-            sigma[ci, pi, take] = np.maximum(np.nan_to_num(mix(lt.sigma), nan=1e3), MIN_SIGMA)
-            vv = np.clip(np.nan_to_num(mix(lt.visibility)), 0, 1)
+            sigma[ci, pi, take] = np.maximum(np.nan_to_num(mix(lt["sigma"]), nan=1e3), MIN_SIGMA)
+            vv = np.clip(np.nan_to_num(mix(lt["visibility"])), 0, 1)
             vv[bad] = 0.0
             vis[ci, pi, take] = vv
-            contact[ci, pi, take] = np.clip(np.nan_to_num(mix(lt.contact)), 0, 1)
-            floor[ci, pi, take] = np.clip(np.nan_to_num(mix(lt.floor_contact)), 0, 1)
+            contact[ci, pi, take] = np.clip(np.nan_to_num(mix(lt["contact"])), 0, 1)
+            floor[ci, pi, take] = np.clip(np.nan_to_num(mix(lt["floor_contact"])), 0, 1)
             present[ci, pi, take] = True
-    sets = {lt.landmark_set for lt in tracks.values()}
+        tracks[n].close()
+    sets = {str(lt.files[0].header.get("landmark_set", "")) for lt in tracks.values()}
     inputs = [ws.calibration] + [ws.landmarks_file(n) for n in names]
     inputs += [p for p in (ws.timing, ws.identities) if p.is_file()] + fill_inputs(ws, names)
     kp_xy = kp_vis = kp_size = hand_xy = hand_vis = None

@@ -17,7 +17,8 @@ PANELS = 4
 VISIBLE = 0.5
 
 
-def draw_keypoints(rgb_hw3: np.ndarray, kt: KeypointTracks, t: int) -> np.ndarray:
+def draw_keypoints(rgb_hw3: np.ndarray, kt: KeypointTracks, t: int, frame: int | None = None) -> np.ndarray:
+    """The people of ``kt``'s frame t drawn on the image (``frame``: the frame number to print, default t)."""
     img = rgb_hw3.copy()
     H = img.shape[0]
     s = max(0.35, H / 720)
@@ -39,32 +40,33 @@ def draw_keypoints(rgb_hw3: np.ndarray, kt: KeypointTracks, t: int) -> np.ndarra
         org = (int(np.nanmean(xy[:, 0])), int(max(14 * s, top - 8 * s)))
         cv2.putText(img, str(int(kt.track_ids[k])), org, cv2.FONT_HERSHEY_SIMPLEX, 0.8 * s, (0, 0, 0), thick + 2)
         cv2.putText(img, str(int(kt.track_ids[k])), org, cv2.FONT_HERSHEY_SIMPLEX, 0.8 * s, (255, 255, 255), thick)
-    label = f"{kt.camera}  frame {t}  t={kt.frame_times[t]:.3f} s  {int(kt.valid[t].sum())} person(s)"
+    label = f"{kt.camera}  frame {t if frame is None else frame}  t={kt.frame_times[t]:.3f} s  {int(kt.valid[t].sum())} person(s)"
     cv2.putText(img, label, (int(6 * s), H - int(8 * s)), cv2.FONT_HERSHEY_SIMPLEX, 0.5 * s, (255, 255, 255),
                 max(1, thick - 1), cv2.LINE_AA)
     return img
 
 
-def picture_frames(kt: KeypointTracks, n: int = PANELS) -> list[int]:
-    """Up to n frames spread over the frames that have keypoints."""
-    have = np.flatnonzero(kt.valid.any(1)) if kt.valid.size else np.zeros(0, int)
+def picture_frames(valid_tk: np.ndarray, n: int = PANELS) -> list[int]:
+    """Up to n frames spread over the frames that have keypoints (valid_tk (T, K))."""
+    have = np.flatnonzero(valid_tk.any(1)) if valid_tk.size else np.zeros(0, int)
     if not len(have):
-        return [0] if len(kt.frame_times) else []
+        return [0] if len(valid_tk) else []
     return sorted({int(have[i]) for i in np.linspace(0, len(have) - 1, min(n, len(have))).round().astype(int)})
 
 
-def write_keypoints_picture(kt: KeypointTracks, video: Path, path: Path, width: int = 1600,
-                            rotation: int | None = None) -> Path:
-    """The frames side by side, scaled to ``width`` px in all."""
+def write_keypoints_picture(kf, video: Path, path: Path, width: int = 1600, rotation: int | None = None) -> Path:
+    """The frames side by side, scaled to ``width`` px in all; ``kf``: the camera's keypoints file
+    (core.trackrows.TrackFile: only the frames drawn are read)."""
     from mamma_kit.video.reader import VideoReader
 
-    frames = picture_frames(kt)
+    frames = picture_frames(kf.valid_tk())
     reader = VideoReader(video, rotation)
-    vid = nearest_frames(kt.frame_times[frames], reader.timestamps) if frames else np.zeros(0, int)
+    vid = nearest_frames(kf.frame_times[frames], reader.timestamps) if frames else np.zeros(0, int)
     t_of = {int(v): t for t, v in zip(frames, vid) if v >= 0}
-    panels = [draw_keypoints(rgb, kt, t_of[i]) for i, _, rgb in reader.read_indices(sorted(t_of))]
+    panels = [draw_keypoints(rgb, kf.window(t_of[i], t_of[i] + 1), 0, t_of[i])
+              for i, _, rgb in reader.read_indices(sorted(t_of))]
     if not panels:
-        panels = [np.zeros((kt.image_size[1], kt.image_size[0], 3), np.uint8)]
+        panels = [np.zeros((kf.header['image_size'][1], kf.header['image_size'][0], 3), np.uint8)]
     row = np.concatenate(panels, 1)
     scale = min(1.0, width / row.shape[1])
     row = cv2.resize(row, (int(row.shape[1] * scale), int(row.shape[0] * scale)), interpolation=cv2.INTER_AREA)

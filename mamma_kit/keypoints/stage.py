@@ -20,7 +20,7 @@ import numpy as np
 from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.manifest import StageManifest, producer
-from mamma_kit.core.tracks import KeypointTracks, MaskTracks, join_frame_ranges, nearest_frames, track_frame_count
+from mamma_kit.core.tracks import KeypointTracks, MaskTracks, nearest_frames, track_frame_count
 from mamma_kit.keypoints.estimator import MIN_FOLLOW_FLAG
 from mamma_kit.keypoints.hands import MIN_PRESENCE as HAND_MIN_PRESENCE
 
@@ -56,15 +56,17 @@ def points_p5(res, j: int) -> np.ndarray:
 
 def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool = True,
                          progress_label: str | None = None, frames: tuple[int, int] | None = None,
-                         resplit: bool | int = True, hands=None, rotation: int | None = None
-                         ) -> tuple[KeypointTracks, dict]:
+                         resplit: bool | int = True, hands=None, rotation: int | None = None, writer=None
+                         ) -> tuple[KeypointTracks | None, dict]:
     """33 points for every (frame, track) of one camera's mask tracks, streaming the video once.
     ``frames``: only the mask frames start:stop (a unit of a split camera; the ROIs are found
     afresh by the detector at its first frame). ``resplit`` (rounds, True = RESPLIT_ROUNDS; with
     ``blank`` only): where two people's masks touch, they are re-split by the points found
     (keypoints/resplit.py) and the people whose mask changed are read again on their new mask.
     ``hands``: a keypoints.hands.HandLandmarker that reads both hands of every person found
-    (read_hands), or None. ``rotation``: capture.toml's override of the file's display rotation."""
+    (read_hands), or None. ``rotation``: capture.toml's override of the file's display rotation.
+    ``writer``: a core.trackrows.RowWriter each frame's rows go to as they are read (a take of
+    minutes is never held); None gathers them into the KeypointTracks returned (else None is)."""
     from mamma_kit.video import VideoReader
 
     reader = VideoReader(video_path, rotation)
@@ -72,7 +74,10 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
         raise UserError(f"masks/{masks.camera}.npz is {masks.image_size[0]}x{masks.image_size[1]} but "
                         f"{reader.path.name} is {reader.size[0]}x{reader.size[1]}",
                         "run `mamma-kit track` again for this camera")
-    out = KeypointTracks.empty(masks.camera, masks.image_size, masks.frame_times, masks.track_ids, model=MODEL_NAME)
+    out = None
+    if writer is None:
+        out = KeypointTracks.empty(masks.camera, masks.image_size, masks.frame_times, masks.track_ids,
+                                   model=MODEL_NAME)
     present = masks.present
     if frames is not None:
         present = present.copy()
@@ -82,7 +87,7 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
     by_video = {int(v): int(t) for t, v in enumerate(vid_idx) if v >= 0 and present[t].any()}
     follow: dict[int, np.ndarray] = {}  # column -> ROI from the previous frame
     last_t: dict[int, int] = {}
-    n_det = n_follow = n_again = n_hands = 0
+    n_det = n_follow = n_again = n_hands = n_pose = n_sure = 0
     rounds = resplit_rounds(resplit) if blank else 0
     t0 = time.perf_counter()
     total = int(present[[t for t in by_video.values()]].sum()) if by_video else 0
@@ -111,24 +116,30 @@ def keypoints_for_tracks(est, masks: MaskTracks, video_path: Path, blank: bool =
             for j, k in enumerate(cols):
                 follow[int(k)] = res.next_rois[j]
                 last_t[int(k)] = t
-            ks = cols[ok]
-            out.valid[t, ks] = True
-            out.xy[t, ks] = res.xy[ok]
-            out.z[t, ks] = res.z[ok]
-            out.visibility[t, ks] = res.visibility[ok]
-            out.presence[t, ks] = res.presence[ok]
-            out.score[t, cols] = res.score
-            if hands is not None and len(ks):
+            # one row per person looked at: the points where the model found a pose, its flag for all
+            spec = KeypointTracks.cell_spec(res.xy.shape[1])
+            rows = {name: np.full((len(cols), *shape), fill, dtype) for name, (shape, dtype, fill) in spec.items()}
+            rows["valid"][ok] = True
+            for name in ("xy", "z", "visibility", "presence"):
+                rows[name][ok] = getattr(res, name)[ok]
+            rows["score"][:] = res.score
+            if hands is not None and ok.any():
                 hand = read_hands(hands, img, res.xy[ok])
-                out.hand_xy[t, ks], out.hand_presence[t, ks], out.hand_right[t, ks] = hand
-                n_hands += 2 * len(ks)
+                rows["hand_xy"][ok], rows["hand_presence"][ok], rows["hand_right"][ok] = hand
+                n_hands += 2 * int(ok.sum())
+            n_pose += int(ok.sum())
+            n_sure += int((rows["hand_presence"] > HAND_MIN_PRESENCE).sum())
+            if writer is not None:
+                writer.append(np.full(len(cols), t), cols, **rows)
+            else:
+                for name, v in rows.items():
+                    getattr(out, name)[t, cols] = v
             advance(len(cols))
     secs = time.perf_counter() - t0
     n = int(present.sum())
-    summary = {"camera": masks.camera, "instances": n, "with_pose": int(out.valid.sum()),
+    summary = {"camera": masks.camera, "instances": n, "with_pose": n_pose,
                "detector_calls": n_det, "followed": n_follow, "resplit": rounds,
-               "read_again": n_again, "hands_read": n_hands,
-               "hands_sure": int((out.hand_presence > HAND_MIN_PRESENCE).sum()), "seconds": round(secs, 3),
+               "read_again": n_again, "hands_read": n_hands, "hands_sure": n_sure, "seconds": round(secs, 3),
                "person_frames_per_s": round(n / secs, 1) if secs > 0 else None}
     return out, summary
 
@@ -221,16 +232,15 @@ def run_keypoints(ws, *, cameras: list[str] | str | None = None, blank: bool = T
     unit = partial(_keypoints_range, root=ws.root, models=models, settings=settings, blank=blank,
                    pictures=pictures, threads=threads)
     parts: dict[str, list] = {cam: [] for cam in todo}
-    for (cam, (start, stop)), (summ, kt) in zip(units, run_units(unit, units, threaded=True)):
-        parts[cam].append((start, stop, kt, summ))
+    for (cam, frames), summ in zip(units, run_units(unit, units, threaded=True)):
+        parts[cam].append((frames, summ))
     for cam in todo:
         if len(parts[cam]) == 1:  # a whole camera: its unit wrote it (so a stopped run keeps it)
-            per_cam[cam] = {"camera": cam, "skipped": False, **parts[cam][0][3]}
+            per_cam[cam] = {"camera": cam, "skipped": False, **parts[cam][0][1]}
             continue
-        kt = join_frame_ranges([(a, b, k) for a, b, k, _ in parts[cam]])
-        summ = _joined_summary(cam, [sm for *_, sm in parts[cam]])
+        summ = _joined_summary(cam, [sm for _, sm in parts[cam]])
         per_cam[cam] = {"camera": cam, "skipped": False,
-                        **_write_camera(ws, cam, kt, summ, models, settings, pictures)}
+                        **_join_parts(ws, cam, [fr for fr, _ in parts[cam]], summ, models, settings, pictures)}
     ran = todo
     per_cam = [per_cam[c] for c in cams]
     secs = time.perf_counter() - t0
@@ -244,10 +254,11 @@ _ESTIMATORS: dict = {}
 
 
 def _keypoints_range(unit: tuple[str, tuple[int, int]], root: Path, models: list[Path], settings: dict,
-                     blank: bool, pictures: bool, threads: int | None) -> tuple[dict, KeypointTracks | None]:
-    """One (camera, frame range), here or in a worker: (summary, None) for a whole camera, whose
-    keypoints/<cam>.npz, picture and manifest it writes itself; else (summary, keypoints with
-    rows start:stop filled) for run_keypoints to join."""
+                     blank: bool, pictures: bool, threads: int | None) -> dict:
+    """One (camera, frame range), here or in a worker; returns its summary. A whole camera writes
+    keypoints/<cam>.npz (rows streamed into it as they are read), its picture and its manifest
+    itself; a part of a camera writes a part file that run_keypoints joins."""
+    from mamma_kit.core.trackrows import RowWriter
     from mamma_kit.core.workspace import Workspace
 
     cam, frames = unit
@@ -262,14 +273,43 @@ def _keypoints_range(unit: tuple[str, tuple[int, int]], root: Path, models: list
     hl = hl if settings["hands"] else None
     masks = MaskTracks.load(ws.mask_file(cam))
     resplit = 0 if masks.producer.get("command") in NO_RESPLIT else settings["resplit"]
-    if frames == (0, len(masks.frame_times)):
-        kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank, resplit=resplit, hands=hl,
-                                        rotation=cap.cameras[cam].rotation)
-        return _write_camera(ws, cam, kt, summ, models, settings, pictures), None
-    kt, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank,
-                                    progress_label=f"keypoints {cam} {frames[0]}-{frames[1]}", frames=frames,
-                                    resplit=resplit, hands=hl, rotation=cap.cameras[cam].rotation)
-    return summ, kt
+    whole = frames == (0, len(masks.frame_times))
+    path = ws.keypoints_file(cam) if whole else part_file(ws, cam, frames)
+    with RowWriter(path, KeypointTracks, _header(masks), 33) as writer:
+        _, summ = keypoints_for_tracks(est, masks, cap.cameras[cam].video, blank, frames=None if whole else frames,
+                                       progress_label=None if whole else f"keypoints {cam} {frames[0]}-{frames[1]}",
+                                       resplit=resplit, hands=hl, rotation=cap.cameras[cam].rotation, writer=writer)
+        if not whole:
+            writer.close()
+            return summ
+        return _write_camera(ws, cam, writer, summ, models, settings, pictures)
+
+
+def _header(masks: MaskTracks) -> dict:
+    return {"camera": masks.camera, "image_size": masks.image_size, "frame_times": masks.frame_times,
+            "track_ids": masks.track_ids, "model": MODEL_NAME, "producer": {}}
+
+
+def part_file(ws, cam: str, frames: tuple[int, int]) -> Path:
+    """Where a unit of a split camera leaves its rows for the join (beside the camera's file)."""
+    return ws.keypoints_dir / f".{cam}.{frames[0]}-{frames[1]}.part.npz"
+
+
+def _join_parts(ws, cam: str, ranges: list, summ: dict, models: list[Path], settings: dict, pictures: bool) -> dict:
+    """keypoints/<cam>.npz from the part files of a split camera, their rows in frame order."""
+    from mamma_kit.core.trackrows import RowWriter, TrackFile, copy_rows
+
+    paths = [part_file(ws, cam, fr) for fr in ranges]
+    with TrackFile(paths[0], KeypointTracks, "keypoint file") as first:
+        header = {**first.header}
+    with RowWriter(ws.keypoints_file(cam), KeypointTracks, header, 33) as writer:
+        for p in paths:
+            with TrackFile(p, KeypointTracks, "keypoint file") as part:
+                copy_rows(part, writer)
+        out = _write_camera(ws, cam, writer, summ, models, settings, pictures)
+    for p in paths:
+        p.unlink(missing_ok=True)
+    return out
 
 
 def _joined_summary(cam: str, summaries: list[dict]) -> dict:
@@ -284,24 +324,27 @@ def _joined_summary(cam: str, summaries: list[dict]) -> dict:
     return out
 
 
-def _write_camera(ws, cam: str, kt: KeypointTracks, summ: dict, models: list[Path], settings: dict,
-                  pictures: bool) -> dict:
-    """keypoints/<cam>.npz, its picture and its manifest, from the camera's joined keypoints."""
+def _write_camera(ws, cam: str, writer, summ: dict, models: list[Path], settings: dict, pictures: bool) -> dict:
+    """keypoints/<cam>.npz (the rows in ``writer``, a core.trackrows.RowWriter, closed here), its
+    picture and its manifest."""
+    from mamma_kit.core.trackrows import TrackFile
+
     cap = ws.load_capture()
     manifest = StageManifest(ws.cache_dir, f"keypoints-{cam}", ws.root)
     inputs, out = [ws.mask_file(cam), cap.cameras[cam].video, *models], ws.keypoints_file(cam)
     tc = time.perf_counter()
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-    kt.producer = producer("keypoints", hashes)
-    kt.save(out)
+    writer.header["producer"] = producer("keypoints", hashes)
+    writer.close()
     outputs = [out]
     if summ["instances"] == 0:
         log.warn(f"{cam}: no tracked person, so no keypoints (an empty keypoints/{cam}.npz)")
     if pictures:
         from mamma_kit.keypoints.pictures import write_keypoints_picture
 
-        pic = write_keypoints_picture(kt, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png",
-                                      rotation=cap.cameras[cam].rotation)
+        with TrackFile(out, KeypointTracks, "keypoint file") as kf:
+            pic = write_keypoints_picture(kf, cap.cameras[cam].video, ws.report_dir / "keypoints" / f"{cam}.png",
+                                          rotation=cap.cameras[cam].rotation)
         summ["picture"] = ws.relative(pic)
         outputs.append(pic)
     manifest.record(inputs, {**settings, "camera": cam}, outputs, summ, summ["seconds"] + time.perf_counter() - tc)

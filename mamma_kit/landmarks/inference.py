@@ -7,7 +7,10 @@
 
 ``run_camera`` streams one camera's video: a reader thread decodes frames and cuts the crops of every
 (frame, track) with a non-empty mask into a bounded queue; the main thread batches them through the
-network. Memory is one frame plus a few batches of crops, whatever the video length.
+network and hands each batch's rows to a sink (``DenseSink``: arrays in memory, for a short take;
+the landmarks stage's sink streams them into the file). The keypoints it reads come a block of frames
+at a time (``PointsByFrame``). Memory is one frame plus a few batches of crops, whatever the video
+length.
 """
 
 from __future__ import annotations
@@ -146,6 +149,41 @@ def track_points(kt: KeypointTracks, t: int, k: int) -> np.ndarray | None:
                            kt.presence[t, k, :, None]], 1)
 
 
+class PointsByFrame:
+    """``track_points`` of a camera's keypoints, from a KeypointTracks in memory or a keypoints file
+    (core.trackrows.TrackFile) read a block of frames at a time, in increasing order."""
+
+    BLOCK = 64
+    KEYS = ("valid", "xy", "z", "visibility", "presence")
+
+    def __init__(self, source):
+        self.source = source
+        self.frame_times, self.track_ids = source.frame_times, source.track_ids
+        self._a, self._w = 0, source if isinstance(source, KeypointTracks) else None
+        self._b = len(self.frame_times) if self._w is not None else 0
+
+    def at(self, t: int, k: int) -> np.ndarray | None:
+        if not self._a <= t < self._b:
+            self._a, self._b = t, t + self.BLOCK
+            self._w = self.source.window(self._a, self._b, keys=self.KEYS)
+        return track_points(self._w, t - self._a, k)
+
+
+class DenseSink:
+    """Landmark rows gathered into a LandmarkTracks of the whole camera (a short take, the fill's tracks)."""
+
+    def __init__(self, out: LandmarkTracks):
+        self.out = out
+
+    def add(self, t_n: np.ndarray, k_n: np.ndarray, cells: dict, complete_before: int) -> None:
+        self.out.valid[t_n, k_n] = True
+        for key, v in cells.items():
+            getattr(self.out, key)[t_n, k_n] = v
+
+    def finish(self) -> None:
+        pass
+
+
 # ---- progress with crops/s --------------------------------------------------------------------
 class _RateColumn(ProgressColumn):
     def render(self, task) -> Text:
@@ -186,7 +224,7 @@ class _Job:
 
 
 def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, np.ndarray]],
-               todo: np.ndarray, keypoints: KeypointTracks | None, hands: bool = False,
+               todo: np.ndarray, keypoints: PointsByFrame | None, hands: bool = False,
                contact: Predictor | None = None) -> Iterator[_Job]:
     boxes = C.tight_box_from_track_box(masks.boxes)
     guided = pred.needs_keypoints
@@ -205,7 +243,7 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
             if guided or hands:
                 keys = list(mlist)
                 others = others_mask([mlist[j] for j in keys], keys.index(int(k)))
-                points = track_points(keypoints, t, k) if keypoints else None
+                points = keypoints.at(t, k) if keypoints else None
                 if guided:
                     extra = pred.crop_inputs(img, res[2], points, others)
                 if hands:
@@ -216,16 +254,18 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
 
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
                min_area: int = MIN_MASK_AREA, producer: dict | None = None,
-               keypoints: KeypointTracks | None = None, frame_range: tuple[int, int] | None = None,
-               hands=None, contact: Predictor | None = None, rotation: int | None = None
-               ) -> tuple[LandmarkTracks, dict]:
+               keypoints=None, frame_range: tuple[int, int] | None = None,
+               hands=None, contact: Predictor | None = None, rotation: int | None = None, sink=None
+               ) -> tuple[LandmarkTracks | None, dict]:
     """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video.
     ``hands``: a hands.HandRefiner that re-reads each hand at the frame's resolution. ``contact``: a
     second network (its own crops) whose person-contact head replaces ``pred``'s.
-    ``keypoints``: the camera's keypoints/<cam>.npz (on the mask tracks' frames and tracks), which
-    keypoint-guided models read. ``frame_range``: only the mask frames start:stop (a unit of a split
-    camera; every crop is independent of the others, so the split changes nothing). ``rotation``:
-    capture.toml's override of the file's display rotation."""
+    ``keypoints``: the camera's keypoints (a KeypointTracks, or its file as a core.trackrows.TrackFile;
+    on the mask tracks' frames and tracks), which keypoint-guided models read. ``frame_range``: only the
+    mask frames start:stop (a unit of a split camera; every crop is independent of the others, so the
+    split changes nothing). ``rotation``: capture.toml's override of the file's display rotation.
+    ``sink``: where each batch's rows go (``add(frame_n, track_n, cells, complete_before)``, then
+    ``finish()``); None gathers them into the LandmarkTracks returned (else None is returned)."""
     from mamma_kit.core.tracks import nearest_frames
     from mamma_kit.video import VideoReader
 
@@ -233,7 +273,7 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
     if tuple(reader.size) != tuple(masks.image_size):
         raise UserError(f"masks/{cam}.npz is {masks.image_size[0]}x{masks.image_size[1]} but {reader.path.name} is "
                         f"{reader.size[0]}x{reader.size[1]}", "run `mamma-kit track` again for this camera")
-    if keypoints is not None and (keypoints.valid.shape != masks.present.shape
+    if keypoints is not None and (len(keypoints.frame_times) != len(masks.frame_times)
                                   or not np.array_equal(keypoints.track_ids, masks.track_ids)):
         raise UserError(f"keypoints/{cam}.npz does not belong to masks/{cam}.npz (other frames or tracks)",
                         "run `mamma-kit keypoints` again for this camera")
@@ -253,9 +293,13 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
         for i, _, img in reader.read_indices(sorted(by_video)):
             yield by_video[i], img
 
-    out = LandmarkTracks.empty(cam, masks.image_size, masks.frame_times, masks.track_ids, pred.n_landmarks,
-                               pred.loaded.landmark_set, f"mammanet:{pred.cfg.name}")
-    out.producer = producer or {}
+    out = None
+    if sink is None:
+        out = LandmarkTracks.empty(cam, masks.image_size, masks.frame_times, masks.track_ids, pred.n_landmarks,
+                                   pred.loaded.landmark_set, f"mammanet:{pred.cfg.name}")
+        out.producer = producer or {}
+        sink = DenseSink(out)
+    points = None if keypoints is None else PointsByFrame(keypoints)
     t0 = time.perf_counter()
     pending: list[_Job] = []
 
@@ -279,15 +323,15 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
                 res["contact"][keep] = net_c["contact"]
         ti = np.array([j.t for j in pending])
         ki = np.array([j.k for j in pending])
-        out.valid[ti, ki] = True
-        for key in ("xy", "sigma", "visibility", "contact", "floor_contact"):
-            getattr(out, key)[ti, ki] = res[key]
+        # the next job's frame is at or after the last one's: the frames before that are complete
+        sink.add(ti, ki, {key: res[key] for key in ("xy", "sigma", "visibility", "contact", "floor_contact")},
+                 complete_before=int(ti[-1]))
         pending.clear()
 
     done = 0
     with _progress() as bar:
         task = bar.add_task(f"landmarks {cam}" + (f" {frame_range[0]}-{frame_range[1]}" if frame_range else ""), total=total)
-        for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, keypoints, hands is not None, contact),
+        for job in threaded(lambda: _crop_jobs(pred, masks, frames(), todo, points, hands is not None, contact),
                             maxsize=2 * batch):
             pending.append(job)
             if len(pending) >= batch:
@@ -299,6 +343,7 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
         flush()
         done += n
         bar.advance(task, n)
+    sink.finish()
     secs = time.perf_counter() - t0
     summary = {"camera": cam, "crops": done, "frames": int(todo.any(1).sum()), "tracks": int(len(masks.track_ids)),
                "seconds": round(secs, 3), "crops_per_s": round(done / secs, 2) if secs > 0 else None}

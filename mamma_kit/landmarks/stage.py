@@ -13,6 +13,8 @@ import time
 from functools import partial
 from pathlib import Path
 
+import numpy as np
+
 from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.manifest import StageManifest, producer
@@ -104,7 +106,7 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
         else:
             todo.append(cam)
     from mamma_kit.core.executor import frame_ranges, run_units
-    from mamma_kit.core.tracks import join_frame_ranges, track_frame_count
+    from mamma_kit.core.tracks import track_frame_count
     _PREDICTORS.clear()  # a fresh model per call here, as before; workers keep theirs across units
 
     # units: (camera, frame range); one range per camera unless unit_frames (or MAMMA_KIT_UNIT_FRAMES)
@@ -118,20 +120,19 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
                    noise=noise, outliers=outliers, seed=seed, loaded=loaded, device=device, batch=batch,
                    refiner=refiner, contact=contact_loaded)
     parts: dict[str, list] = {cam: [] for cam in todo}
-    for (cam, frames), (summ, lt) in zip(units, run_units(unit, units, threaded=source == "gt")):
-        parts[cam].append((frames, lt, summ))
+    for (cam, frames), summ in zip(units, run_units(unit, units, threaded=source == "gt")):
+        parts[cam].append((frames, summ))
     for cam in todo:
         if len(parts[cam]) == 1:  # a whole camera: its unit wrote it (so a stopped run keeps it)
-            per_cam[cam] = {"camera": cam, "skipped": False, **parts[cam][0][2]}
+            per_cam[cam] = {"camera": cam, "skipped": False, **parts[cam][0][1]}
             continue
-        lt = join_frame_ranges([(*fr, part) for fr, part, _ in parts[cam]])
-        summs = [sm for *_, sm in parts[cam]]
+        summs = [sm for _, sm in parts[cam]]
         secs = sum(sm["seconds"] for sm in summs)
         summ = {"camera": cam, "crops": sum(sm["crops"] for sm in summs), "frames": sum(sm["frames"] for sm in summs),
                 "tracks": summs[0]["tracks"], "seconds": round(secs, 3), "units": len(summs)}
         summ["crops_per_s"] = round(summ["crops"] / secs, 2) if secs > 0 else None
         per_cam[cam] = {"camera": cam, "skipped": False,
-                        **_write_camera(ws, cam, lt, summ, settings, unit_inputs, secs)}
+                        **_join_parts(ws, cam, [fr for fr, _ in parts[cam]], summ, settings, unit_inputs, secs)}
     ran = todo
     per_cam = [per_cam[c] for c in cams]
     secs = time.perf_counter() - t0
@@ -208,10 +209,10 @@ def contact_network(loaded, contact: str | Path | None, device: str = "cpu"):
 
 def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, source: str, settings: dict,
                      unit_inputs: dict, noise: str, outliers: float, seed: int, loaded, device: str, batch: int,
-                     refiner=None, contact=None):
-    """One (camera, frame range), here or in a worker: (summary, None) for a whole camera, whose
-    landmarks/<cam>.npz and manifest it writes itself; else (summary, landmarks with rows
-    start:stop filled) for run_landmarks to join."""
+                     refiner=None, contact=None) -> dict:
+    """One (camera, frame range), here or in a worker; returns its summary. A whole camera writes
+    landmarks/<cam>.npz and its manifest itself, streaming its rows into the file; a part of a
+    camera writes its rows, not yet smoothed, into a part file that run_landmarks joins."""
     from mamma_kit.core.workspace import Workspace
 
     cam, frames = unit
@@ -221,8 +222,12 @@ def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, sourc
         from mamma_kit.landmarks.gt import noisy_gt_landmarks
 
         lt, summ = noisy_gt_landmarks(ws, cam, noise, outliers, seed)
-        return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
+        o = _Output(ws, cam, settings, unit_inputs)
+        lt.producer = o.producer()
+        lt.save(o.path)
+        return o.record(summ, time.perf_counter() - t0)
     from mamma_kit.core.reproducible import one_thread
+    from mamma_kit.core.trackrows import TrackFile
     from mamma_kit.core.tracks import KeypointTracks, MaskTracks
     from mamma_kit.landmarks.inference import Predictor, run_camera
 
@@ -234,30 +239,110 @@ def _landmarks_range(unit: tuple[str, tuple[int, int] | None], root: Path, sourc
     cap = ws.load_capture()
     masks = MaskTracks.load(ws.mask_file(cam))
     use_kp = loaded.config.keypoints_in or (refiner is not None and ws.keypoints_file(cam).is_file())
-    kt = KeypointTracks.load(ws.keypoints_file(cam)) if use_kp else None
+    kt = TrackFile(ws.keypoints_file(cam), KeypointTracks, "keypoint file") if use_kp else None
     whole = frames == (0, len(masks.frame_times))
-    with one_thread():  # the same bits whatever the cores, the executor or the other units
-        lt, summ = run_camera(pred, cam, masks, cap.cameras[cam].video, batch, keypoints=kt,
-                              frame_range=None if whole else frames, hands=refiner, contact=pred_contact,
-                              rotation=cap.cameras[cam].rotation)
-    if whole:
-        return _write_camera(ws, cam, lt, summ, settings, unit_inputs, time.perf_counter() - t0), None
-    return summ, lt
+    header = {"camera": cam, "image_size": masks.image_size, "frame_times": masks.frame_times,
+              "track_ids": masks.track_ids, "landmark_set": loaded.landmark_set,
+              "source": f"mammanet:{pred.cfg.name}", "producer": {}}
+    o = _Output(ws, cam, settings, unit_inputs)
+    path = o.path if whole else part_file(ws, cam, frames)
+    with FileSink(path, header, pred.n_landmarks, settings.get("smooth_s", 0) if whole else 0) as sink:
+        with one_thread():  # the same bits whatever the cores, the executor or the other units
+            _, summ = run_camera(pred, cam, masks, cap.cameras[cam].video, batch, keypoints=kt,
+                                 frame_range=None if whole else frames, hands=refiner, contact=pred_contact,
+                                 rotation=cap.cameras[cam].rotation, sink=sink)
+        if kt is not None:
+            kt.close()
+        if not whole:
+            sink.close()
+            return summ
+        sink.writer.header["producer"] = o.producer()
+        sink.close()
+        return o.record(summ, time.perf_counter() - t0)
 
 
-def _write_camera(ws, cam: str, lt, summ: dict, settings: dict, unit_inputs: dict, seconds: float) -> dict:
-    """landmarks/<cam>.npz and its manifest, from the camera's landmarks (``seconds``: computing them);
-    the network's contact and visibility smoothed first (the whole camera's tracks: here, after any
-    frame ranges are joined)."""
-    if settings.get("smooth_s", 0) > 0:
-        from mamma_kit.landmarks.smooth import smooth_landmarks
+def part_file(ws, cam: str, frames: tuple[int, int]) -> Path:
+    """Where a unit of a split camera leaves its rows for the join (beside the camera's file)."""
+    return ws.landmarks_dir / f".{cam}.{frames[0]}-{frames[1]}.part.npz"
 
-        lt = smooth_landmarks(lt, settings["smooth_s"])
-    manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
-    inputs, out = unit_inputs[cam], ws.landmarks_file(cam)
+
+class FileSink:
+    """run_camera's rows streamed into a landmark file (core.trackrows.RowWriter), the network's
+    contact and visibility smoothed on the way (landmarks/smooth.RowSmoother) unless smooth_s is 0."""
+
+    def __init__(self, path: Path, header: dict, n_landmarks: int, smooth_s: float = 0.0):
+        from mamma_kit.core.trackrows import RowWriter
+        from mamma_kit.core.tracks import LandmarkTracks
+        from mamma_kit.landmarks.smooth import RowSmoother, contact_neighbours
+
+        self.writer = RowWriter(path, LandmarkTracks, header, n_landmarks)
+        self.smoother = RowSmoother(header["frame_times"], smooth_s, contact_neighbours(
+            header["landmark_set"], n_landmarks)) if smooth_s and smooth_s > 0 else None
+
+    def add(self, t_n, k_n, cells: dict, complete_before: int) -> None:
+        cells = {**cells, "valid": np.ones(len(t_n), bool)}
+        if self.smoother is not None:
+            t_n, k_n, cells = self.smoother.push(t_n, k_n, cells, complete_before)
+        self.writer.append(t_n, k_n, **cells)
+
+    def finish(self) -> None:
+        if self.smoother is not None:
+            t_n, k_n, cells = self.smoother.finish()
+            self.writer.append(t_n, k_n, **cells)
+            self.smoother = None
+
+    def close(self) -> Path:
+        self.finish()
+        return self.writer.close()
+
+    def __enter__(self) -> "FileSink":
+        return self
+
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is not None:
+            self.writer.abort()
+
+
+class _Output:
+    """A camera's landmark file and manifest: the producer record to put in the file and the
+    manifest written once the file is (``record``)."""
+
+    def __init__(self, ws, cam: str, settings: dict, unit_inputs: dict):
+        self.ws, self.cam, self.settings, self.inputs = ws, cam, settings, unit_inputs[cam]
+        self.path = ws.landmarks_file(cam)
+        self.manifest = StageManifest(ws.cache_dir, f"landmarks-{cam}", ws.root)
+
+    def producer(self) -> dict:
+        hashes = {self.ws.relative(p): self.manifest.hasher(p) for p in self.inputs}
+        return producer("landmarks " + " ".join(f"{k}={v}" for k, v in self.settings.items()), hashes)
+
+    def record(self, summ: dict, seconds: float) -> dict:
+        self.manifest.record(self.inputs, {**self.settings, "camera": self.cam}, [self.ws.landmarks_file(self.cam)],
+                             summ, seconds)
+        return summ
+
+
+def _join_parts(ws, cam: str, ranges: list, summ: dict, settings: dict, unit_inputs: dict, seconds: float) -> dict:
+    """landmarks/<cam>.npz from the part files of a split camera: their rows in frame order, smoothed
+    as a whole camera's are (the smoothing reaches across the parts' edges), then the manifest."""
+    from mamma_kit.core.trackrows import TrackFile
+    from mamma_kit.core.tracks import LandmarkTracks
+
     tc = time.perf_counter()
-    hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
-    lt.producer = producer("landmarks " + " ".join(f"{k}={v}" for k, v in settings.items()), hashes)
-    lt.save(out)
-    manifest.record(inputs, {**settings, "camera": cam}, [out], summ, seconds + time.perf_counter() - tc)
-    return summ
+    paths = [part_file(ws, cam, fr) for fr in ranges]
+    with TrackFile(paths[0], LandmarkTracks, "landmark file") as first:
+        header = {**first.header}
+        n = first.n
+    o = _Output(ws, cam, settings, unit_inputs)
+    with FileSink(o.path, header, n, settings.get("smooth_s", 0)) as sink:
+        for (a, b), p in zip(ranges, paths):
+            with TrackFile(p, LandmarkTracks, "landmark file") as part:
+                for s in range(a, b, 256):
+                    t_n, k_n, d = part.rows(s, min(b, s + 256))
+                    d.pop("valid", None)
+                    sink.add(t_n, k_n, d, complete_before=min(b, s + 256))
+        sink.writer.header["producer"] = o.producer()
+        sink.close()
+        for p in paths:
+            p.unlink(missing_ok=True)
+        return o.record(summ, seconds + time.perf_counter() - tc)

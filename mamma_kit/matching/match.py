@@ -198,16 +198,14 @@ def camera_times(ws: Workspace, cams: list[str], tracks: dict, timing: Path | No
     return {c: np.arange(len(frame_times[c]), dtype=np.float64) for c in cams}, "frame index"
 
 
-HEADER_KEYS = ("camera", "image_size", "frame_times", "track_ids", "valid")
-
-
 def workspace_views(ws: Workspace, cameras: list[str] | None = None, calibration: Path | None = None,
                     timing: Path | None = None, settings: MatchSettings | None = None) \
         -> tuple[list[ViewSource], list[ViewSource | None] | None, str]:
     """The workspace's views ready for matching, read from their files a window at a time: landmark
     tracks, keypoint tracks (None where a camera has none, or None for all) and how frames are
     paired in time."""
-    from mamma_kit.core.io import read_npz
+    from mamma_kit.core.trackrows import TrackFile
+    from mamma_kit.core.tracks import LandmarkTracks
 
     calib = calibration or ws.calibration
     if not Path(calib).is_file():
@@ -226,35 +224,33 @@ def workspace_views(ws: Workspace, cameras: list[str] | None = None, calibration
                         "calibrate every camera of the capture, or pass --cameras")
     if len(cameras) < 2:
         raise UserError("matching needs at least two cameras", "pass two or more with --cameras")
-    heads = {c: read_npz(ws.landmarks_file(c), "landmark file", keys=HEADER_KEYS) for c in cameras}
-    for c, h in heads.items():
-        if any(k not in h for k in HEADER_KEYS[1:]):
-            raise UserError(f"{ws.landmarks_file(c).name} is not a landmark file (no frame_times, track_ids or valid)",
-                            "run `mamma-kit landmarks WORKSPACE` again")
+    files = {c: TrackFile(ws.landmarks_file(c), LandmarkTracks, "landmark file") for c in cameras}
     if timing is None and ws.timing.is_file():
         timing = ws.timing
-    times, how = camera_times(ws, cameras, {c: h["frame_times"] for c, h in heads.items()},
+    times, how = camera_times(ws, cameras, {c: f.frame_times for c, f in files.items()},
                               Path(timing) if timing else None)
     s = settings or MatchSettings()
-    views = [ViewSource.from_file(ws.landmarks_file(c), "landmark file", _camera_for(rig[c], heads[c]["image_size"]),
-                                  times[c], heads[c], s.vis_threshold) for c in cameras]
-    kp_views = keypoint_views(ws, cameras, heads, rig, times, s) if s.use_keypoints else None
+    views = [ViewSource.from_file(files[c], _camera_for(rig[c], files[c].header["image_size"]), times[c],
+                                  s.vis_threshold) for c in cameras]
+    kp_views = keypoint_views(ws, cameras, files, rig, times, s) if s.use_keypoints else None
     return views, kp_views, how
 
 
-def keypoint_views(ws: Workspace, cameras: list[str], heads: dict[str, dict], rig, times,
+def keypoint_views(ws: Workspace, cameras: list[str], files: dict, rig, times,
                    s: MatchSettings) -> list[ViewSource | None] | None:
-    """The cameras' keypoint tracks where keypoints/<cam>.npz exists for the same tracks, else None."""
-    from mamma_kit.core.io import read_npz
+    """The cameras' keypoint tracks where keypoints/<cam>.npz exists for the same tracks, else None
+    (``files``: the cameras' landmark files, core.trackrows.TrackFile)."""
+    from mamma_kit.core.trackrows import TrackFile
+    from mamma_kit.core.tracks import KeypointTracks
 
     out = []
     for c in cameras:
         path = ws.keypoints_file(c)
-        kh = read_npz(path, "keypoint file", keys=HEADER_KEYS) if path.is_file() else None
-        same = kh is not None and "track_ids" in kh and "frame_times" in kh and \
-            np.array_equal(kh["track_ids"], heads[c]["track_ids"]) and len(kh["frame_times"]) == len(heads[c]["frame_times"])
-        out.append(ViewSource.from_file(path, "keypoint file", _camera_for(rig[c], kh["image_size"]), times[c], kh,
-                                        s.vis_threshold) if same else None)
+        kf = TrackFile(path, KeypointTracks, "keypoint file") if path.is_file() else None
+        same = kf is not None and np.array_equal(kf.track_ids, files[c].track_ids) and \
+            kf.n_frames == files[c].n_frames
+        out.append(ViewSource.from_file(kf, _camera_for(rig[c], kf.header["image_size"]), times[c], s.vis_threshold)
+                   if same else None)
     return out if any(v is not None for v in out) else None
 
 

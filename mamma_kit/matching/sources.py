@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -44,7 +43,8 @@ class ViewSource:
 
     times_ref (T,), track_ids (K,); valid_tk (T, K) and centroid_tk2 (T, K, 2) become those of the
     built frames as windows are read (``window`` records them: the first pass over the take's
-    windows fills them). ``read_rows(start, stop)``: frames start:stop with every track."""
+    windows fills them). ``read_rows(start, stop, track_ids)``: frames start:stop with the given
+    tracks (None: at least those present in them)."""
 
     name: str
     camera: Camera
@@ -53,7 +53,7 @@ class ViewSource:
     track_ids: np.ndarray
     valid_tk: np.ndarray
     centroid_tk2: np.ndarray
-    read_rows: Callable[[int, int], ViewTracks]
+    read_rows: Callable[[int, int, np.ndarray | None], ViewTracks]
 
     @property
     def n_tracks(self) -> int:
@@ -61,28 +61,35 @@ class ViewSource:
 
     @classmethod
     def in_memory(cls, v: ViewTracks) -> "ViewSource":
+        def read(a: int, b: int, ids: np.ndarray | None) -> ViewTracks:
+            return take(v, slice(a, b), slice(None) if ids is None else np.flatnonzero(np.isin(v.track_ids, ids)))
+
         return cls(v.name, v.camera, v.times_ref, v.period, v.track_ids, v.valid_tk.copy(),
-                   np.full((*v.valid_tk.shape, 2), np.nan), lambda a, b: take(v, slice(a, b)))
+                   np.full((*v.valid_tk.shape, 2), np.nan), read)
 
     @classmethod
-    def from_file(cls, path: Path, what: str, camera: Camera, times_ref: np.ndarray, header: dict,
-                  vis_threshold: float = 0.5, min_height_px: float = 8.0) -> "ViewSource":
-        """A landmark or keypoint file (xy, valid, visibility per frame) streamed; ``header``: its
-        small arrays (track_ids, valid) already read."""
-        from mamma_kit.core.io import NpzRows
-
-        rows = NpzRows(path, ("xy", "valid", "visibility"), what)
+    def from_file(cls, tf, camera: Camera, times_ref: np.ndarray, vis_threshold: float = 0.5,
+                  min_height_px: float = 8.0) -> "ViewSource":
+        """A landmark or keypoint file (core.trackrows.TrackFile: xy, valid, visibility per frame) streamed."""
         times_ref = np.asarray(times_ref, np.float64)
         period = float(np.median(np.diff(times_ref))) if len(times_ref) > 1 else 1.0
-        name, track_ids = str(header.get("camera", Path(path).stem)), np.asarray(header["track_ids"], np.int64)
+        name, track_ids = str(tf.header["camera"]), tf.track_ids
 
-        def read(a: int, b: int) -> ViewTracks:
-            d = rows.rows(a, b)
-            return ViewTracks.from_arrays(name, track_ids, d["xy"], d["valid"].astype(bool), d["visibility"], camera,
+        def read(a: int, b: int, ids: np.ndarray | None) -> ViewTracks:
+            cols = tf.columns_in(a, b) if ids is None else np.flatnonzero(np.isin(track_ids, ids))
+            w = tf.window(a, b, keys=("valid", "xy", "visibility"), cols=cols)
+            return ViewTracks.from_arrays(name, w.track_ids, w.xy, w.valid, w.visibility, camera,
                                           times_ref[a:b], vis_threshold, min_height_px, period=period)
 
-        valid = np.asarray(header["valid"], bool)
-        return cls(name, camera, times_ref, period, track_ids, valid.copy(), np.full((*valid.shape, 2), np.nan), read)
+        valid = tf.valid_tk()
+        return cls(name, camera, times_ref, period, track_ids, valid, np.full((*valid.shape, 2), np.nan), read)
+
+    @property
+    def _order(self) -> np.ndarray:
+        """The track columns sorted by id (to find a window's tracks among them)."""
+        if getattr(self, "_order_cache", None) is None:
+            self._order_cache = np.argsort(self.track_ids, kind="stable")
+        return self._order_cache
 
     def window(self, lo: float, hi: float, track_ids: np.ndarray | None = None) -> ViewTracks | None:
         """The frames with lo <= t < hi and the tracks present in them, or the given tracks (a
@@ -91,11 +98,14 @@ class ViewSource:
         f = np.flatnonzero((self.times_ref >= lo) & (self.times_ref < hi))
         if not len(f):
             return None
-        v = self.read_rows(int(f[0]), int(f[-1]) + 1)
+        v = self.read_rows(int(f[0]), int(f[-1]) + 1, track_ids)
         if len(f) != f[-1] - f[0] + 1:  # times out of order: only the frames in the window
             v = take(v, f - f[0])
-        self.valid_tk[f] = v.valid_tk
-        self.centroid_tk2[f] = centroids(v)
+        cols = np.searchsorted(self.track_ids, v.track_ids, sorter=self._order)
+        cols = self._order[np.minimum(cols, len(self._order) - 1)]
+        valid, cent = np.zeros((len(f), self.n_tracks), bool), np.full((len(f), self.n_tracks, 2), np.nan)
+        valid[:, cols], cent[:, cols] = v.valid_tk, centroids(v)
+        self.valid_tk[f], self.centroid_tk2[f] = valid, cent
         keep = np.flatnonzero(v.valid_tk.any(0) if track_ids is None else np.isin(v.track_ids, track_ids))
         if not len(keep):
             return None
