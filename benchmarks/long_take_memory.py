@@ -12,8 +12,9 @@ pictures (one video frame per camera) are left out: the looped workspaces have n
 
 With --stages the videos themselves are looped (decoded, played ping-pong, re-encoded; only the
 cameras given by --cameras, to keep the run short) and every stage from the videos runs on each
-length, each in its own process: `track`, `keypoints`, `landmarks`, `match`, with their peak memory
-and time, so a stage whose memory grows with the take shows it.
+length, each in its own process: `track`, `keypoints`, `landmarks`, `match`, `fill`, `fit` and
+`report`, with their peak memory and time, so a stage whose memory grows with the take shows it
+(--only: a comma-separated subset, the earlier stages' outputs already there).
 
     nice -n 10 python benchmarks/long_take_memory.py --source /work/bench/ident/crowd6_seed0 \\
         --out /work/bench/long_stages --stages --cameras cam0,cam4 --loops 1,4,16
@@ -106,8 +107,9 @@ def make_video_workspace(src: Path, dst: Path, n: int, cams: list[str]) -> tuple
     return seconds, frames
 
 
-STAGE_ARGS = {"track": ["--quiet"], "keypoints": ["--quiet"], "landmarks": ["--quiet"],
-              "match": ["--quiet", "--no-plots"]}
+STAGE_ARGS = {"track": ["--quiet", "--backend", "pose"], "keypoints": ["--quiet"], "landmarks": ["--quiet"],
+              "match": ["--quiet", "--no-plots"], "fill": ["--quiet"], "fit": ["--quiet"],
+              "report": ["--quiet", "--no-video"]}
 
 
 def main_stages(args) -> None:
@@ -117,16 +119,24 @@ def main_stages(args) -> None:
     from mamma_kit.core.workspace import Workspace
 
     cams = args.cameras.split(",")
-    print(f"{args.source.name}: cameras {', '.join(cams)}; every stage from the videos looped n times")
+    stages = args.only.split(",") if args.only else list(STAGE_ARGS)
+    print(f"{args.source.name}: cameras {', '.join(cams)}; every stage from the videos looped n times "
+          f"(peak MB / seconds)")
     print(f"{'n':>4s} {'take s':>8s} {'frames/cam':>10s} {'persons':>7s}  "
-          + "  ".join(f"{s + ' MB/s':>18s}" for s in STAGE_ARGS))
+          + "  ".join(f"{s:>16s}" for s in stages))
     for n in [int(x) for x in args.loops.split(",")]:
         ws = args.out / f"{args.source.name}_v{n}"
-        seconds, frames = make_video_workspace(args.source, ws, n, cams)
+        if (ws / "capture.toml").is_file() and args.only:
+            from mamma_kit.core.io import read_npz
+
+            times = read_npz(Workspace(ws).mask_file(cams[0]), keys=("frame_times",))["frame_times"]
+            frames, seconds = len(times), float(times[-1] - times[0])
+        else:
+            seconds, frames = make_video_workspace(args.source, ws, n, cams)
         cells = []
-        for stage, extra in STAGE_ARGS.items():
-            secs, peak = run_stage([stage, str(ws), "--force", *extra])
-            cells.append(f"{peak:8.0f} / {secs:7.1f}")
+        for stage in stages:
+            secs, peak = run_stage([stage, str(ws), "--force", *STAGE_ARGS[stage]])
+            cells.append(f"{peak:6.0f} / {secs:7.1f}")
         persons = len(read_identities(Workspace(ws).identities).person_ids)
         print(f"{n:4d} {seconds:8.1f} {frames:10d} {persons:7d}  " + "  ".join(f"{c:>18s}" for c in cells),
               flush=True)
@@ -145,6 +155,7 @@ def main() -> None:
     ap.add_argument("--loops", default="1,4,16")
     ap.add_argument("--stages", action="store_true", help="loop the videos and run every stage from them")
     ap.add_argument("--cameras", default="cam0,cam4", help="with --stages: the cameras to loop")
+    ap.add_argument("--only", default="", help="with --stages: only these stages (comma-separated)")
     args = ap.parse_args()
     if args.stages:
         return main_stages(args)

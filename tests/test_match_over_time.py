@@ -175,7 +175,8 @@ def test_rows_of_an_npz_are_read_in_any_order(tmp_path):
     path = write_npz(tmp_path / "a.npz", **arrays)
     with NpzRows(path, tuple(arrays)) as rows:
         assert rows.n_rows == 90
-        for a, b in [(0, 10), (5, 20), (40, 52), (50, 61), (3, 4), (85, 200), (0, 90)]:
+        for a, b in [(0, 10), (5, 20), (40, 52), (50, 61), (3, 4), (85, 200), (0, 90), (0, 30), (10, 50), (12, 13),
+                     (20, 70), (60, 61)]:  # a range inside the block kept, then further on
             got = rows.rows(a, b)
             for k, v in arrays.items():
                 assert np.array_equal(got[k], v[a:b]), (k, a, b)

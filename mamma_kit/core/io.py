@@ -238,15 +238,16 @@ class NpzRows:
             self._pos = self._start = start
             self._block = {k: self._empty(k) for k in self.keys}
         new = max(0, stop - self._pos)
-        out = {}
+        out, block = {}, {}
         for k in self.keys:
             if k in self._whole:
-                out[k] = self._whole[k][start:stop]
+                out[k] = block[k] = self._whole[k][start:stop]
                 continue
             kept = self._block[k][start - self._start:]
-            out[k] = np.concatenate([kept, self._read(k, new)]) if new else kept[:stop - start]
+            block[k] = np.concatenate([kept, self._read(k, new)]) if new else kept  # rows start:_pos, kept
+            out[k] = block[k][:stop - start]
         self._pos = max(self._pos, stop)
-        self._start, self._block = start, out
+        self._start, self._block = start, block
         return out
 
     def close(self) -> None:

@@ -98,6 +98,81 @@ class FitData:
                        sub(self.kp_xy), sub(self.kp_vis), sub(self.kp_size), sub(self.hand_xy), sub(self.hand_vis))
 
 
+class LandmarkReader:
+    """The cameras' landmark files read into the fit's arrays for some output frames: each view's
+    tracks sampled at the output times (module doc), a block of frames at a time. The files stay open
+    between calls (frames asked for in increasing order are read in one pass); pickled without them."""
+
+    def __init__(self, root: Path, names: list[str], ref_times: dict, person_of: dict, pindex: dict, n: int):
+        self.root, self.names, self.ref_times, self.person_of = Path(root), names, ref_times, person_of
+        self.pindex, self.n = pindex, n
+        self._files: dict | None = None
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_files": None}
+
+    def read(self, out_t: np.ndarray) -> tuple[np.ndarray, ...]:
+        """xy, sigma, vis, contact, floor at the output times ``out_t`` (module doc's arrays)."""
+        from mamma_kit.core.filled import track_files
+
+        ws = Workspace(self.root)
+        if self._files is None:
+            self._files = {n: CameraFiles(track_files(ws, "landmarks", n)) for n in self.names}
+        C, P, T, L = len(self.names), len(self.pindex), len(out_t), self.n
+        xy = np.zeros((C, P, T, L, 2), np.float32)
+        sigma = np.ones((C, P, T, L, 2), np.float32)
+        vis = np.zeros((C, P, T, L), np.float32)
+        contact = np.zeros((C, P, T, L), np.float32)
+        floor = np.zeros((C, P, T, L), np.float32)
+        taken = np.zeros((C, P, T), bool)
+        keys = ("valid", "xy", "sigma", "visibility", "contact", "floor_contact")
+        for ci, n in enumerate(self.names):
+            if not len(self.ref_times[n]):
+                continue
+            for pi, take, mix, lt in sample_camera(self._files[n], self.ref_times[n], out_t, self.person_of[n],
+                                                   self.pindex, taken[ci], keys):
+                xy_m = mix(lt["xy"])
+                bad = ~np.isfinite(xy_m).all(-1)
+                xy[ci, pi, take] = np.nan_to_num(xy_m)
+                sigma[ci, pi, take] = np.maximum(np.nan_to_num(mix(lt["sigma"]), nan=1e3), MIN_SIGMA)
+                vv = np.clip(np.nan_to_num(mix(lt["visibility"])), 0, 1)
+                vv[bad] = 0.0
+                vis[ci, pi, take] = vv
+                contact[ci, pi, take] = np.clip(np.nan_to_num(mix(lt["contact"])), 0, 1)
+                floor[ci, pi, take] = np.clip(np.nan_to_num(mix(lt["floor_contact"])), 0, 1)
+                taken[ci, pi, take] = True
+        return xy, sigma, vis, contact, floor
+
+    def close(self) -> None:
+        for cf in (self._files or {}).values():
+            cf.close()
+        self._files = None
+
+
+@dataclass
+class FitSource(FitData):
+    """FitData whose landmark arrays (xy, sigma, vis, contact, floor: None here) stay in their files
+    until ``slice_frames`` asks for some frames: the fit holds a chunk's landmarks, not the take's.
+    Everything else (present, keypoints, hands) is the take's, as in FitData."""
+
+    landmarks: LandmarkReader | None = None
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        C, P, T = self.present.shape
+        return C, P, T, self.landmarks.n
+
+    def slice_frames(self, s) -> FitData:
+        """FitData of the output frames ``s`` (a slice or indices), their landmarks read from the files."""
+        idx = np.arange(len(self.frame_times))[s]
+        xy, sigma, vis, contact, floor = self.landmarks.read(self.frame_times[idx])
+        sub = lambda a: None if a is None else a[:, :, idx]  # noqa: E731
+        return FitData(self.rig, self.clocks, self.reference, self.frame_camera, self.frame_times[idx], self.fps,
+                       self.person_ids, xy, sigma, vis, contact, floor, sub(self.present), self.landmark_set,
+                       self.notes, self.inputs, sub(self.kp_xy), sub(self.kp_vis), sub(self.kp_size),
+                       sub(self.hand_xy), sub(self.hand_vis))
+
+
 def _read_clocks(ws: Workspace, names: list[str]) -> tuple[dict[str, ClockModel], str, list[str]]:
     notes = []
     if ws.timing.is_file():
@@ -226,8 +301,11 @@ def sample_camera(cf: CameraFiles, tr: np.ndarray, out_t: np.ndarray, person_tk:
     stretch's values at those frames. ``tr``: the camera's frame times on the reference clock;
     ``taken_pt`` (P, T): output frames a person already has from this camera (updated by the caller)."""
     i0, i1, a = _bracket(tr, out_t)
-    for o0 in range(0, len(out_t), SAMPLE_BLOCK):
-        o1 = min(o0 + SAMPLE_BLOCK, len(out_t))
+    starts = [0]  # blocks of output frames whose view frames lie within SAMPLE_BLOCK of each other
+    for j in range(1, len(out_t)):
+        if j - starts[-1] >= SAMPLE_BLOCK or abs(int(i1[j]) - int(i0[starts[-1]])) >= SAMPLE_BLOCK:
+            starts.append(j)
+    for o0, o1 in zip(starts, starts[1:] + [len(out_t)]):
         lo, hi = int(min(i0[o0:o1].min(), i1[o0:o1].min())), int(max(i0[o0:o1].max(), i1[o0:o1].max())) + 1
         cols, arrays = cf.window(lo, hi, keys)
         if not len(cols):
@@ -315,10 +393,11 @@ def select_cameras(rig: Rig, cameras: int | None, camera_list: list[str] | None)
     return rig.names
 
 
-def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[str] | None = None,
-                  n_landmarks: int | None = None, keypoints: bool = True) -> FitData:
-    """Read calibration, timing, landmarks, keypoints (unless ``keypoints`` is False) and
-    identities of a workspace (see module doc)."""
+def open_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[str] | None = None,
+                  n_landmarks: int | None = None, keypoints: bool = True) -> "FitSource":
+    """Read calibration, timing, keypoints (unless ``keypoints`` is False) and identities of a
+    workspace, and where its landmarks are (see module doc): a FitSource, whose slice_frames reads
+    the landmarks of the frames asked for."""
     if not ws.calibration.is_file():
         raise UserError(f"{ws.root} has no calibration.toml", "run `mamma-kit calibrate WORKSPACE` first")
     rig_all, _ = read_calibration(ws.calibration)
@@ -375,29 +454,14 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
     fps = float(1.0 / np.median(d)) if len(d) else 30.0
 
     C, P, T = len(names), len(person_ids), len(out_t)
-    xy = np.zeros((C, P, T, L, 2), np.float32)
-    sigma = np.ones((C, P, T, L, 2), np.float32)
-    vis = np.zeros((C, P, T, L), np.float32)
-    contact = np.zeros((C, P, T, L), np.float32)
-    floor = np.zeros((C, P, T, L), np.float32)
-    present = np.zeros((C, P, T), bool)
     pindex = {p: i for i, p in enumerate(person_ids)}
-    keys = ("valid", "xy", "sigma", "visibility", "contact", "floor_contact")
+    # where each view shows each person at the output frames: from the files' valid flags only
+    present = np.zeros((C, P, T), bool)
     for ci, n in enumerate(names):
-        tr = ref_times[n]
-        if len(tr) == 0:
-            continue
-        for pi, take, mix, lt in sample_camera(tracks[n], tr, out_t, person_of[n], pindex, present[ci], keys):
-            xy_m = mix(lt["xy"])
-            bad = ~np.isfinite(xy_m).all(-1)
-            xy[ci, pi, take] = np.nan_to_num(xy_m)
-            sigma[ci, pi, take] = np.maximum(np.nan_to_num(mix(lt["sigma"]), nan=1e3), MIN_SIGMA)
-            vv = np.clip(np.nan_to_num(mix(lt["visibility"])), 0, 1)
-            vv[bad] = 0.0
-            vis[ci, pi, take] = vv
-            contact[ci, pi, take] = np.clip(np.nan_to_num(mix(lt["contact"])), 0, 1)
-            floor[ci, pi, take] = np.clip(np.nan_to_num(mix(lt["floor_contact"])), 0, 1)
-            present[ci, pi, take] = True
+        if len(ref_times[n]):
+            for pi, take, _, _ in sample_camera(tracks[n], ref_times[n], out_t, person_of[n], pindex, present[ci],
+                                                ("valid",)):
+                present[ci, pi, take] = True
         tracks[n].close()
     sets = {str(lt.files[0].header.get("landmark_set", "")) for lt in tracks.values()}
     inputs = [ws.calibration] + [ws.landmarks_file(n) for n in names]
@@ -412,6 +476,13 @@ def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         elif len(kp_files) < len(names):
             notes.append("no keypoints for " + ", ".join(n for n in names if not ws.keypoints_file(n).is_file())
                          + ": the keypoint energy uses the other views")
-    return FitData(rig, clocks, reference, frame_camera, out_t, fps, person_ids, xy, sigma, vis, contact, floor,
-                   present, ",".join(sorted(s for s in sets if s)), notes, inputs, kp_xy, kp_vis, kp_size,
-                   hand_xy, hand_vis)
+    return FitSource(rig, clocks, reference, frame_camera, out_t, fps, person_ids, None, None, None, None, None,
+                     present, ",".join(sorted(s for s in sets if s)), notes, inputs, kp_xy, kp_vis, kp_size,
+                     hand_xy, hand_vis, landmarks=LandmarkReader(ws.root, names, ref_times, person_of, pindex, L))
+
+
+def load_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[str] | None = None,
+                  n_landmarks: int | None = None, keypoints: bool = True) -> FitData:
+    """Everything the fit reads of a workspace, the landmarks of every frame in memory (open_fit_data
+    reads them a chunk at a time)."""
+    return open_fit_data(ws, cameras, camera_list, n_landmarks, keypoints).slice_frames(slice(None))

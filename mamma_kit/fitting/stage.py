@@ -19,57 +19,85 @@ from mamma_kit.fitting.stages import FitConfig, Fitter, FitResult
 REPORT_NAME = "fit_report.json"
 
 
-def reprojection_report(model, data, result: FitResult, min_vis: float = 0.5) -> dict:
+REPORT_BLOCK = 256  # output frames whose reprojection is measured at once
+
+
+def _summary(e_parts: list[np.ndarray], rel_parts: list[np.ndarray] | None, count_key: str) -> dict:
+    """mean / median / 90th percentile of one camera's errors (parts in person-major order)."""
+    e = np.concatenate(e_parts) if e_parts else np.zeros(0, np.float32)
+    if not len(e):
+        return {count_key: 0}
+    out = {"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90))}
+    if rel_parts is not None:
+        out["median_pct_size"] = float(np.median(np.concatenate(rel_parts)))
+    return {**out, count_key: int(len(e))}
+
+
+def _blocks(fitter, result: FitResult):
+    """(output frame slice, that block's data as fitted) over the take, REPORT_BLOCK frames at a time."""
+    T = len(result.frame_times)
+    for a in range(0, T, REPORT_BLOCK):
+        s = slice(a, min(a + REPORT_BLOCK, T))
+        yield s, fitter.frames(s)
+
+
+def reprojection_report(model, fitter, result: FitResult, min_vis: float = 0.5) -> dict:
     """Per camera: mean / median / 90th percentile px between the observed landmarks
-    (visibility > min_vis) and the fitted bodies' projected landmarks."""
+    (visibility > min_vis) and the fitted bodies' projected landmarks (the take read a block of
+    frames at a time through ``fitter.frames``: the data as fitted)."""
     import torch
 
     from mamma_kit.body.lbs import pose_restricted
     from mamma_kit.fitting.energies import pose_dict
     from mamma_kit.fitting.projection import RigTensors
 
-    cams = RigTensors.from_rig(data.rig).to(torch.float32)
-    with torch.no_grad():
-        v, _ = pose_restricted(model, pose_dict(torch.as_tensor(result.pose, dtype=torch.float32),
-                                                torch.as_tensor(result.transl, dtype=torch.float32),
-                                                torch.as_tensor(result.betas, dtype=torch.float32)))
-        uv, valid = cams.project(v[None])
-    err = np.linalg.norm(uv.numpy() - data.xy, axis=-1)  # (C, P, T, L)
-    use = (data.vis > min_vis) & valid.numpy()
-    out = {}
-    for i, n in enumerate(data.cameras):
-        e = err[i][use[i]]
-        out[n] = ({"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
-                   "landmarks": int(len(e))} if len(e) else {"landmarks": 0})
-    return out
+    cams = RigTensors.from_rig(fitter.data.rig).to(torch.float32)
+    C, P = len(fitter.data.cameras), len(result.person_ids)
+    parts = [[[] for _ in range(P)] for _ in range(C)]
+    for s, data in _blocks(fitter, result):
+        with torch.no_grad():
+            v, _ = pose_restricted(model, pose_dict(torch.as_tensor(result.pose[:, s], dtype=torch.float32),
+                                                    torch.as_tensor(result.transl[:, s], dtype=torch.float32),
+                                                    torch.as_tensor(result.betas, dtype=torch.float32)))
+            uv, valid = cams.project(v[None])
+        err = np.linalg.norm(uv.numpy() - data.xy, axis=-1)  # (C, P, T, L)
+        use = (data.vis > min_vis) & valid.numpy()
+        for i in range(C):
+            for p in range(P):
+                parts[i][p].append(err[i, p][use[i, p]])
+    return {n: _summary([e for pp in parts[i] for e in pp], None, "landmarks") for i, n in enumerate(fitter.data.cameras)}
 
 
-def keypoint_report(model, data, result: FitResult, regressor, min_vis: float = 0.5, hands: bool = False) -> dict:
-    """Per camera: median / mean / 90th percentile px between BlazePose's points (visibility
-    x presence > min_vis) and the fitted bodies' regressed points, and the median in % of
-    the person's size in the view; ``hands``: the same for the hand points (data.hand_xy,
-    where the hand model was sure) with a hand regressor."""
+def keypoint_report(model, fitter, result: FitResult, regressor, min_vis: float = 0.5, hands: bool = False) -> dict:
+    """Per camera: median / mean / 90th percentile px between BlazePose's points (visibility x
+    presence > min_vis) and the fitted bodies' regressed points, and the median in % of the person's
+    size in the view; ``hands``: the same for the hand points (data.hand_xy, where the hand model was
+    sure) with a hand regressor."""
     import torch
 
     from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp
     from mamma_kit.fitting.projection import RigTensors
 
     kin = BodyKinematics(model, regressor=regressor)
-    with torch.no_grad():
-        f = kin.forward(torch.as_tensor(result.betas), so3_exp(torch.as_tensor(result.pose)),
-                        torch.as_tensor(result.transl), dtype=torch.float64)
-        uv, valid = RigTensors.from_rig(data.rig).project(f.v[None])
-    xy, vis = (data.hand_xy, data.hand_vis) if hands else (data.kp_xy, data.kp_vis)
-    err = np.linalg.norm(uv.numpy() - xy, axis=-1)  # (C, P, T, K)
-    use = (vis > min_vis) & valid.numpy() & (data.kp_size[..., None] > 0)
-    rel = err / np.maximum(data.kp_size[..., None], 1e-6) * 100
-    out = {}
-    for i, n in enumerate(data.cameras):
-        e = err[i][use[i]]
-        out[n] = ({"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
-                   "median_pct_size": float(np.median(rel[i][use[i]])), "points": int(len(e))}
-                  if len(e) else {"points": 0})
-    return out
+    cams = RigTensors.from_rig(fitter.data.rig)
+    C, P = len(fitter.data.cameras), len(result.person_ids)
+    parts = [[[] for _ in range(P)] for _ in range(C)]
+    rels = [[[] for _ in range(P)] for _ in range(C)]
+    for s, data in _blocks(fitter, result):
+        with torch.no_grad():
+            f = kin.forward(torch.as_tensor(result.betas), so3_exp(torch.as_tensor(result.pose[:, s])),
+                            torch.as_tensor(result.transl[:, s]), dtype=torch.float64)
+            uv, valid = cams.project(f.v[None])
+        xy, vis = (data.hand_xy, data.hand_vis) if hands else (data.kp_xy, data.kp_vis)
+        err = np.linalg.norm(uv.numpy() - xy, axis=-1)  # (C, P, T, K)
+        use = (vis > min_vis) & valid.numpy() & (data.kp_size[..., None] > 0)
+        rel = err / np.maximum(data.kp_size[..., None], 1e-6) * 100
+        for i in range(C):
+            for p in range(P):
+                parts[i][p].append(err[i, p][use[i, p]])
+                rels[i][p].append(rel[i, p][use[i, p]])
+    return {n: _summary([e for pp in parts[i] for e in pp], [r for pp in rels[i] for r in pp], "points")
+            for i, n in enumerate(fitter.data.cameras)}
 
 
 def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None = None, stages: int = 4,
@@ -83,7 +111,7 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     from mamma_kit.core.io import write_json
     from mamma_kit.core.manifest import StageManifest, producer
     from mamma_kit.core.smplxfile import SmplxResult, write_smplx_result
-    from mamma_kit.fitting.data import load_fit_data
+    from mamma_kit.fitting.data import open_fit_data
 
     if threads:
         torch.set_num_threads(int(threads))
@@ -92,7 +120,7 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     cfg = dataclasses.replace(config or FitConfig(), stages=stages)  # the caller's config stays as it was
     model = load_body_model(body_model)
     t0 = time.perf_counter()
-    data = load_fit_data(ws, cameras, camera_list, n_landmarks=len(model.landmark_ids))
+    data = open_fit_data(ws, cameras, camera_list, n_landmarks=len(model.landmark_ids))
     if data.landmark_set and not data.landmark_set.startswith(model.name):
         log.warn(f"landmarks were made for '{data.landmark_set}', fitting body model '{model.name}'")
     model_path = resolve_body_model_path(body_model)
@@ -112,15 +140,15 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     log.info(f"fit: {len(data.person_ids)} person(s), {len(data.frame_times)} frames, cameras "
              f"{', '.join(data.cameras)}, stages 1-{stages}")
     fitter = Fitter(model, data, cfg)
-    data, set_aside = fitter.data, fitter.set_aside  # the data as fitted: views set aside weigh 0
+    from mamma_kit.fitting.units import fit_in_units
+
+    result = fit_in_units(fitter)  # Fitter.fit with its chunks as units of the executor
+    set_aside = fitter.set_aside  # views whose keypoints missed the others' consensus: they weighed 0 there
     if set_aside:
         views = "; ".join(f"{c} " + ", ".join(f"person {p} {n['keypoints']} / {n['landmarks']}" for p, n in ps.items())
                           for c, ps in set_aside.items())
         log.info(f"fit: views set aside where their keypoints miss the other views (frames of keypoints / "
                  f"landmarks): {views}")
-    from mamma_kit.fitting.units import fit_in_units
-
-    result = fit_in_units(fitter)  # Fitter.fit with its chunks as units of the executor
     secs = time.perf_counter() - t0
     hashes = {ws.relative(p): manifest.hasher(p) for p in inputs}
     written = []
@@ -142,16 +170,17 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
                      "frames_observed": int(result.observed[i].sum())} for i, pid in enumerate(result.person_ids)],
         "chunks": result.chunks,
         "stage_stats": {k: v.to_dict() for k, v in result.stats.items()},
-        "reprojection_px": reprojection_report(model, data, result),
+        "reprojection_px": reprojection_report(model, fitter, result),
         "views_set_aside": {"max_miss_frac": cfg.view_outlier_frac, "frames": set_aside},
         "keypoints": ({"used": True, "weight": cfg.keypoint_weight, "robust_scale_sigmas": cfg.keypoint_gamma,
                        "regressor_learned": fitter.body_regressor.learned,
-                       "reprojection_px": keypoint_report(model, data, result, fitter.body_regressor)}
+                       "reprojection_px": keypoint_report(model, fitter, result, fitter.body_regressor)}
                       if fitter.kp is not None else
                       {"used": False, "why": "no keypoints/<cam>.npz" if not data.has_keypoints
                        else "keypoint_weight is 0"}),
         "hand_keypoints": ({"used": True, "weight": cfg.hand_keypoint_weight,
-                            "reprojection_px": keypoint_report(model, data, result, fitter.hand_regressor, hands=True)}
+                            "reprojection_px": keypoint_report(model, fitter, result, fitter.hand_regressor,
+                                                               hands=True)}
                            if fitter.hands else
                            {"used": False, "why": "no hand the hand model was sure of in keypoints/<cam>.npz"
                             if not data.has_hands else "hand_keypoint_weight or keypoint_weight is 0"}),

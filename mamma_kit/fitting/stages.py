@@ -58,7 +58,7 @@ from mamma_kit.fitting.gauss_newton import DTYPE, GaussNewton, GNConfig, GNRepor
 from mamma_kit.fitting.kinematics import BodyKinematics, so3_exp, so3_log
 from mamma_kit.fitting.projection import RigTensors
 from mamma_kit.fitting.repose import FINGER_JOINTS, repose_limbs
-from mamma_kit.fitting.views import set_aside_inconsistent, spread_subset
+from mamma_kit.fitting.views import set_aside_flags, set_aside_summary, spread_subset
 
 RIGID_S1_PARTS = ("torso", "pelvis", "neck", "head")
 # a view sees a person in a frame when the person's landmark visibilities there sum to more
@@ -67,6 +67,7 @@ MIN_VISIBLE_LANDMARKS = 20
 # ... or (with keypoints) when this many of BlazePose's 33 points are visible (> 0.5)
 MIN_VISIBLE_KEYPOINTS = 12
 FOOT_PARTS = ("left_foot", "right_foot")
+JOINT_BLOCK = 256  # frames posed at once for the joints written
 CONSENSUS_LANDMARKS = 32  # landmarks spread over the body that judge a view's landmarks (fitting/views.py)
 
 
@@ -246,6 +247,7 @@ class ChunkResult:
     observed: np.ndarray  # (P, T)
     stats: dict[str, StageStats]
     snapshots: dict[str, State] = field(default_factory=dict)
+    set_aside: tuple[np.ndarray, np.ndarray] | None = None  # the chunk's views set aside (Fitter.frames)
 
     @property
     def betas(self) -> np.ndarray:
@@ -298,14 +300,15 @@ class Fitter:
     """Fits one body model to FitData; ``fit()`` runs the chunks and joins them."""
 
     def __init__(self, model, data: FitData, cfg: FitConfig | None = None):
+        """``data``: the take's FitData, or a FitSource whose landmarks are read a chunk at a time."""
         self.model = model
         self.cfg = cfg or FitConfig()
-        # views whose keypoints miss the others' consensus weigh 0 there:
-        # {camera: {person: {"keypoints": frames, "landmarks": frames}}}
+        self.data = data
+        # views whose keypoints miss the others' consensus weigh 0 there (fitting/views.py), judged
+        # frame by frame as chunks are read; the frames so far (C, P, T) for keypoints and landmarks
         lm_rest = model.v_template.numpy()[model.landmark_ids]
-        self.data, self.set_aside = set_aside_inconsistent(data, self.cfg.view_outlier_frac,
-                                                           spread_subset(lm_rest, CONSENSUS_LANDMARKS))
-        data = self.data
+        self.consensus_landmarks = spread_subset(lm_rest, CONSENSUS_LANDMARKS)
+        self.aside = (np.zeros(data.present.shape, bool), np.zeros(data.present.shape, bool))
         self.kin = BodyKinematics(model)
         self.cams = RigTensors.from_rig(data.rig)
         self.active_all = tuple(int(j) for j in np.unique(self.kin.infl.numpy()) if j < sk.NUM_JOINTS)
@@ -333,6 +336,24 @@ class Fitter:
             self.kp = True
 
     # ---- observations -------------------------------------------------------------------
+    def frames(self, s) -> FitData:
+        """The data of the output frames ``s`` (a slice or indices), inconsistent views set aside there;
+        the flags are added to ``aside``."""
+        idx = np.arange(len(self.data.frame_times))[s]
+        d, flags, lm_flags = set_aside_flags(self.data.slice_frames(idx), self.cfg.view_outlier_frac,
+                                             self.consensus_landmarks)
+        self.note_set_aside(idx, flags, lm_flags)
+        return d
+
+    def note_set_aside(self, idx: np.ndarray, flags: np.ndarray, lm_flags: np.ndarray) -> None:
+        self.aside[0][:, :, idx] |= flags
+        self.aside[1][:, :, idx] |= lm_flags
+
+    @property
+    def set_aside(self) -> dict:
+        """{camera: {person: {"keypoints": frames, "landmarks": frames}}} set aside in the frames read so far."""
+        return set_aside_summary(self.data.cameras, self.data.person_ids, *self.aside)
+
     def _lm_vis(self, d: FitData) -> np.ndarray:
         return d.vis if self.cfg.landmark_weight == 1 else d.vis * np.float32(self.cfg.landmark_weight)
 
@@ -601,14 +622,15 @@ class Fitter:
         when there are several chunks), cross-faded as axis-angle where chunks overlap.
         ``run_chunks(parts, betas) -> [ChunkResult]`` fits the chunks' data (default: here, in
         order); fitting/units.py hands them to the executor."""
-        d = self.data
-        chunks = self.plan_chunks(len(d.frame_times))
+        chunks = self.plan_chunks(len(self.data.frame_times))
         betas, stats = self.shape_fit(chunks)
-        parts = [d.slice_frames(slice(s, e)) for s, e in chunks]
-        if run_chunks is None:
-            results = [self.fit_chunk(part, betas) for part in log.track(parts, "fit chunks")]
+        if run_chunks is None:  # each chunk's data read as it is fitted: the take is never held whole
+            results = [self.fit_chunk(self.frames(slice(s, e)), betas) for s, e in log.track(chunks, "fit chunks")]
         else:
-            results = run_chunks(parts, betas)
+            results = run_chunks(chunks, betas)
+            for (s, e), r in zip(chunks, results):
+                if r.set_aside is not None:
+                    self.note_set_aside(np.arange(s, e), *r.set_aside)
         return self.join(chunks, results, betas, stats)
 
     def shape_fit(self, chunks: list[tuple[int, int]]) -> tuple[np.ndarray | None, dict[str, "StageStats"]]:
@@ -619,7 +641,7 @@ class Fitter:
             return None, stats
         T = len(self.data.frame_times)
         idx = np.unique(np.linspace(0, T - 1, min(self.cfg.shape_frames, T)).round().astype(int))
-        r = self.fit_chunk(self.data.slice_frames(idx), None, stages=2)
+        r = self.fit_chunk(self.frames(idx), None, stages=2)
         for k, st in r.stats.items():
             stats.setdefault("shape_" + k, StageStats("shape_" + k)).add(st)
         return r.betas, stats
@@ -628,7 +650,7 @@ class Fitter:
              stats: dict[str, "StageStats"]) -> "FitResult":
         """The chunks' results cross-faded into one FitResult (axis-angle from here on)."""
         d = self.data
-        C, P, T, L = d.shape
+        P, T = len(d.person_ids), len(d.frame_times)
         if betas is None:  # one chunk: its own shape
             betas = results[0].betas
         pose = np.zeros((P, T, sk.NUM_JOINTS, 3))
@@ -651,12 +673,16 @@ class Fitter:
         pose /= wsum[None, :, None, None]
         transl /= wsum[None, :, None]
         snapshots = {k: (a[0] / wsum[None, :, None, None], a[1] / wsum[None, :, None]) for k, a in snaps.items()}
-        with torch.no_grad():
-            _, joints = pose_restricted(self.model, pose_dict(torch.as_tensor(pose, dtype=torch.float32),
-                                                              torch.as_tensor(transl, dtype=torch.float32),
-                                                              torch.as_tensor(betas, dtype=torch.float32)))
-        return FitResult(d.person_ids, d.frame_times, d.fps, betas, pose, transl, joints.numpy().astype(np.float64),
-                         observed, stats, chunks, snapshots)
+        joints = np.zeros((P, T, sk.NUM_JOINTS, 3))
+        with torch.no_grad():  # a block of frames at a time: a long take's bodies are not posed at once
+            for a in range(0, T, JOINT_BLOCK):
+                b = min(a + JOINT_BLOCK, T)
+                _, j = pose_restricted(self.model, pose_dict(torch.as_tensor(pose[:, a:b], dtype=torch.float32),
+                                                             torch.as_tensor(transl[:, a:b], dtype=torch.float32),
+                                                             torch.as_tensor(betas, dtype=torch.float32)))
+                joints[:, a:b] = j.numpy()
+        return FitResult(d.person_ids, d.frame_times, d.fps, betas, pose, transl, joints, observed, stats, chunks,
+                         snapshots)
 
 
 @dataclass

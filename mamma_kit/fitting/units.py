@@ -12,8 +12,9 @@ sequence (the views it set aside, its point sets), here in this process, or a co
 without the sequence's data on a Ray worker, never one rebuilt from a chunk: a chunk's own
 consensus of views or its own hands would be another fit.
 
-A unit reads only its chunk's slice of the fit data (C cameras x P people x its frames x L
-landmarks) and returns its ChunkResult (the chunk's solver State, snapshots, stats).
+A unit is a chunk's frame range: it reads only that chunk's data (C cameras x P people x its frames
+x L landmarks, Fitter.frames: from the landmark files when the Fitter's data is a FitSource) and
+returns its ChunkResult (the chunk's solver State, snapshots, stats, and the views it set aside).
 """
 
 from __future__ import annotations
@@ -26,20 +27,25 @@ import numpy as np
 from mamma_kit.fitting.stages import ChunkResult, Fitter, FitResult
 
 
-def fit_chunk_unit(chunk_data, fitter: Fitter, betas: np.ndarray | None) -> ChunkResult:
-    """One unit: the four stages on one chunk's data with the sequence's shape ``betas`` (P, 16)."""
-    return fitter.fit_chunk(chunk_data, betas)
+def fit_chunk_unit(chunk: tuple[int, int], fitter: Fitter, betas: np.ndarray | None) -> ChunkResult:
+    """One unit: the four stages on one chunk's frames start:stop with the sequence's shape ``betas`` (P, 16)."""
+    s, e = chunk
+    idx = np.arange(s, e)
+    d = fitter.frames(idx)
+    r = fitter.fit_chunk(d, betas)
+    r.set_aside = tuple(a[:, :, idx].copy() for a in fitter.aside)
+    return r
 
 
 def fit_in_units(fitter: Fitter) -> FitResult:
     """``fitter.fit()`` with its chunks run as units of the executor (see the module docstring)."""
     from mamma_kit.core.executor import run_units
 
-    unit_fitter = copy.copy(fitter)  # fit_chunk reads its chunk, not the sequence: not sent to workers
-    unit_fitter.data = None
+    unit_fitter = copy.copy(fitter)  # its own record of the views set aside (a worker's is sent back)
+    unit_fitter.aside = tuple(np.zeros_like(a) for a in fitter.aside)
 
-    def run_chunks(parts, betas):
+    def run_chunks(chunks, betas):
         # the chunks use every core through torch: locally they run here in order, as Fitter.fit ran them
-        return run_units(partial(fit_chunk_unit, fitter=unit_fitter, betas=betas), parts, threaded=True)
+        return run_units(partial(fit_chunk_unit, fitter=unit_fitter, betas=betas), chunks, threaded=True)
 
     return fitter.fit(run_chunks=run_chunks)

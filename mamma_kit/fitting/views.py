@@ -98,9 +98,9 @@ def spread_subset(points_n3: np.ndarray, n: int) -> np.ndarray:
     return np.array(sel, np.int64)
 
 
-def set_aside_inconsistent(data, frac: float, landmark_subset: np.ndarray | None = None, lm_min_vis: float = 0.2):
-    """``data`` (FitData) with the weights of inconsistent views at 0 for those frames, and a
-    summary {camera: {person: {"keypoints": frames, "landmarks": frames}}} of what was set aside.
+def set_aside_flags(data, frac: float, landmark_subset: np.ndarray | None = None, lm_min_vis: float = 0.2):
+    """``data`` (FitData) with the weights of inconsistent views at 0 for those frames, and the flags
+    (C, P, T): views whose keypoints and hand points were set aside, and whose landmarks were.
 
     Keypoints and hand points go where BlazePose's body points miss the consensus
     (``inconsistent_views``); the landmarks with them only where they too are off it: the
@@ -108,12 +108,14 @@ def set_aside_inconsistent(data, frac: float, landmark_subset: np.ndarray | None
     the consensus pair's triangulation (a keypoint-guided network follows BlazePose off the
     person; landmarks from elsewhere, or too few seen to tell, stay). Without a subset, the
     landmarks go with the keypoints. The data is returned as it is without keypoints, with fewer
-    than three cameras or ``frac`` 0."""
+    than three cameras or ``frac`` 0. Every frame is judged on its own, so a chunk of frames gets
+    the flags the whole take has there."""
+    none = np.zeros(data.present.shape, bool)
     if not data.has_keypoints or frac <= 0 or len(data.cameras) < 3:
-        return data, {}
+        return data, none, none
     flags, best = inconsistent_views(data.rig, data.kp_xy, data.kp_vis, data.kp_size, frac)
     if not flags.any():
-        return data, {}
+        return data, flags, flags
     lm_flags = flags
     if landmark_subset is not None:
         sub = np.asarray(landmark_subset)
@@ -123,7 +125,20 @@ def set_aside_inconsistent(data, frac: float, landmark_subset: np.ndarray | None
     kp_keep = (~flags).astype(np.float32)[..., None]
     vis = data.vis * (~lm_flags).astype(np.float32)[..., None]
     hand_vis = None if data.hand_vis is None else data.hand_vis * kp_keep
-    summary = {c: {str(p): {"keypoints": int(flags[ci, pi].sum()), "landmarks": int(lm_flags[ci, pi].sum())}
-                   for pi, p in enumerate(data.person_ids) if flags[ci, pi].any()}
-               for ci, c in enumerate(data.cameras) if flags[ci].any()}
-    return dataclasses.replace(data, vis=vis, kp_vis=data.kp_vis * kp_keep, hand_vis=hand_vis), summary
+    return dataclasses.replace(data, vis=vis, kp_vis=data.kp_vis * kp_keep, hand_vis=hand_vis), flags, lm_flags
+
+
+def set_aside_summary(cameras: list[str], person_ids: list[int], flags: np.ndarray, lm_flags: np.ndarray) -> dict:
+    """{camera: {person: {"keypoints": frames, "landmarks": frames}}} of the views set aside."""
+    return {c: {str(p): {"keypoints": int(flags[ci, pi].sum()), "landmarks": int(lm_flags[ci, pi].sum())}
+                for pi, p in enumerate(person_ids) if flags[ci, pi].any()}
+            for ci, c in enumerate(cameras) if flags[ci].any()}
+
+
+def set_aside_inconsistent(data, frac: float, landmark_subset: np.ndarray | None = None, lm_min_vis: float = 0.2):
+    """``data`` with inconsistent views set aside (set_aside_flags) and the summary of what was
+    (set_aside_summary; {} when nothing was)."""
+    out, flags, lm_flags = set_aside_flags(data, frac, landmark_subset, lm_min_vis)
+    if not flags.any():
+        return data, {}
+    return out, set_aside_summary(data.cameras, data.person_ids, flags, lm_flags)
