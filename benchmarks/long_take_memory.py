@@ -107,9 +107,9 @@ def make_video_workspace(src: Path, dst: Path, n: int, cams: list[str]) -> tuple
     return seconds, frames
 
 
-STAGE_ARGS = {"track": ["--quiet", "--backend", "pose"], "keypoints": ["--quiet"], "landmarks": ["--quiet"],
-              "match": ["--quiet", "--no-plots"], "fill": ["--quiet"], "fit": ["--quiet"],
-              "report": ["--quiet", "--no-video"]}
+STAGE_ARGS = {"track": ["--force", "--quiet", "--backend", "pose"], "keypoints": ["--force", "--quiet"],
+              "landmarks": ["--force", "--quiet"], "match": ["--force", "--quiet", "--no-plots"],
+              "fill": ["--force", "--quiet"], "fit": ["--force", "--quiet"], "report": ["--quiet", "--no-video"]}
 
 
 def main_stages(args) -> None:
@@ -135,7 +135,7 @@ def main_stages(args) -> None:
             seconds, frames = make_video_workspace(args.source, ws, n, cams)
         cells = []
         for stage in stages:
-            secs, peak = run_stage([stage, str(ws), "--force", *STAGE_ARGS[stage]])
+            secs, peak = run_stage([stage, str(ws), *STAGE_ARGS[stage]])
             cells.append(f"{peak:6.0f} / {secs:7.1f}")
         persons = len(read_identities(Workspace(ws).identities).person_ids)
         print(f"{n:4d} {seconds:8.1f} {frames:10d} {persons:7d}  " + "  ".join(f"{c:>18s}" for c in cells),

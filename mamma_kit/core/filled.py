@@ -8,6 +8,8 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import numpy as np
+
 from mamma_kit.core.identities import Identities, read_identities
 from mamma_kit.core.tracks import KeypointTracks, LandmarkTracks, MaskTracks, append_tracks
 from mamma_kit.core.workspace import Workspace
@@ -39,9 +41,10 @@ def _with_fill(ws: Workspace, kind: str, cam: str, base_path: Path, cls):
     return base
 
 
-def track_files(ws: Workspace, kind: str, cam: str) -> list:
-    """The camera's keypoint or landmark files as core.trackrows.TrackFile, to be read a window at a
-    time: its own, then the fill's (its tracks' columns follow the camera's own, as in load_*)."""
+def open_tracks(ws: Workspace, kind: str, cam: str) -> "CameraTracks":
+    """The camera's keypoint or landmark tracks, to be read a window of frames at a time: its own
+    file, then the fill's when it is current (its tracks' columns follow the camera's own, as in
+    load_keypoints / load_landmarks)."""
     from mamma_kit.core.trackrows import TrackFile
 
     cls, base = {"keypoints": (KeypointTracks, ws.keypoints_file(cam)),
@@ -50,7 +53,61 @@ def track_files(ws: Workspace, kind: str, cam: str) -> list:
     extra = ws.fill_file(kind, cam)
     if extra.is_file() and fill_is_current(ws):
         files.append(TrackFile(extra, cls, f"{kind[:-1]} file"))
-    return files
+    return CameraTracks(files)
+
+
+class CameraTracks:
+    """A camera's track files (open_tracks: its own, then the fill's) read as one, a window of frames
+    at a time: the tracks of every file side by side, in the files' order."""
+
+    def __init__(self, files: list):
+        self.files = files
+        self.frame_times = files[0].frame_times
+        self.track_ids = np.concatenate([f.track_ids for f in files])
+        self.header = files[0].header
+        self.image_size = self.header["image_size"]
+        self.n = files[0].n
+        self._offsets = np.cumsum([0] + [len(f.track_ids) for f in files])
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frame_times)
+
+    @property
+    def producer(self) -> dict:
+        return self.header.get("producer", {})
+
+    def __getattr__(self, name: str):
+        if name in ("source", "landmark_set", "model", "camera"):  # the header's strings
+            return self.header.get(name, "")
+        raise AttributeError(name)
+
+    def rows(self, lo: int, hi: int, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """Some fields of every row of frames lo:hi (the files' rows one after the other)."""
+        parts = [f.rows(lo, hi, keys)[2] for f in self.files]
+        return {k: np.concatenate([p[k] for p in parts]) for k in keys}
+
+    def valid_tk(self) -> np.ndarray:
+        return np.concatenate([f.valid_tk() for f in self.files], 1)
+
+    def window(self, lo: int, hi: int, keys: tuple[str, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The columns with rows in frames lo:hi (indices into track_ids) and their arrays there."""
+        cols, parts = [], []
+        for off, f in zip(self._offsets, self.files):
+            c = f.columns_in(lo, hi)
+            cols.append(off + c)
+            parts.append(f.window(lo, hi, keys=keys, cols=c))
+        return np.concatenate(cols), {k: np.concatenate([getattr(w, k) for w in parts], 1) for k in keys}
+
+    def close(self) -> None:
+        for f in self.files:
+            f.close()
+
+    def __enter__(self) -> "CameraTracks":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def load_masks(ws: Workspace, cam: str) -> MaskTracks:

@@ -40,7 +40,7 @@ from mamma_kit.core.calibfile import read_calibration
 from mamma_kit.core.camera import Rig
 from mamma_kit.core.clock import ClockModel
 from mamma_kit.core.errors import UserError
-from mamma_kit.core.filled import fill_inputs, track_files
+from mamma_kit.core.filled import fill_inputs, open_tracks
 from mamma_kit.core.tracks import HAND_SURE_FLAG, N_HAND_POINTS
 from mamma_kit.core.workspace import Workspace
 
@@ -113,11 +113,9 @@ class LandmarkReader:
 
     def read(self, out_t: np.ndarray) -> tuple[np.ndarray, ...]:
         """xy, sigma, vis, contact, floor at the output times ``out_t`` (module doc's arrays)."""
-        from mamma_kit.core.filled import track_files
-
         ws = Workspace(self.root)
         if self._files is None:
-            self._files = {n: CameraFiles(track_files(ws, "landmarks", n)) for n in self.names}
+            self._files = {n: open_tracks(ws, "landmarks", n) for n in self.names}
         C, P, T, L = len(self.names), len(self.pindex), len(out_t), self.n
         xy = np.zeros((C, P, T, L, 2), np.float32)
         sigma = np.ones((C, P, T, L, 2), np.float32)
@@ -265,38 +263,9 @@ def sampled_tracks(valid_tk: np.ndarray, person_tk: np.ndarray, pindex: dict, i0
 SAMPLE_BLOCK = 256  # output frames whose views' rows are read at once (memory: their window, not the take)
 
 
-class CameraFiles:
-    """A camera's track files (core.filled.track_files: its own, then the fill's) read as one, a
-    window of frames at a time: the tracks of every file side by side, in the files' order."""
-
-    def __init__(self, files: list):
-        self.files = files
-        self.frame_times = files[0].frame_times
-        self.track_ids = np.concatenate([f.track_ids for f in files])
-        self.image_size = files[0].header["image_size"]
-        self.n = files[0].n
-        self._offsets = np.cumsum([0] + [len(f.track_ids) for f in files])
-
-    def valid_tk(self) -> np.ndarray:
-        return np.concatenate([f.valid_tk() for f in self.files], 1)
-
-    def window(self, lo: int, hi: int, keys: tuple[str, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """The columns with rows in frames lo:hi (indices into track_ids) and their arrays there."""
-        cols, parts = [], []
-        for off, f in zip(self._offsets, self.files):
-            c = f.columns_in(lo, hi)
-            cols.append(off + c)
-            parts.append(f.window(lo, hi, keys=keys, cols=c))
-        return np.concatenate(cols), {k: np.concatenate([getattr(w, k) for w in parts], 1) for k in keys}
-
-    def close(self) -> None:
-        for f in self.files:
-            f.close()
-
-
-def sample_camera(cf: CameraFiles, tr: np.ndarray, out_t: np.ndarray, person_tk: np.ndarray, pindex: dict,
+def sample_camera(cf, tr: np.ndarray, out_t: np.ndarray, person_tk: np.ndarray, pindex: dict,
                   taken_pt: np.ndarray, keys: tuple[str, ...]):
-    """``sampled_tracks`` over a camera's files a block of output frames at a time (SAMPLE_BLOCK):
+    """``sampled_tracks`` over a camera's files (core.filled.CameraTracks) a block of output frames at a time (SAMPLE_BLOCK):
     yields (pi, frames (n,) output frame indices, mix, arrays) where ``mix(arrays[key])`` gives that
     stretch's values at those frames. ``tr``: the camera's frame times on the reference clock;
     ``taken_pt`` (P, T): output frames a person already has from this camera (updated by the caller)."""
@@ -327,8 +296,6 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
                    pindex: dict, image_sizes: dict) -> tuple[np.ndarray | None, ...]:
     """kp_xy, kp_vis, kp_size, hand_xy, hand_vis (module doc) and the files read; Nones without
     any file. Each camera's file is read a block of frames at a time (sample_camera)."""
-    from mamma_kit.core.filled import track_files
-
     have = [n for n in names if ws.keypoints_file(n).is_file()]
     if not have:
         return None, None, None, None, None, []
@@ -344,7 +311,7 @@ def load_keypoints(ws: Workspace, names: list[str], ref_times: dict, out_t: np.n
     for ci, n in enumerate(names):
         if n not in have:
             continue
-        cf = CameraFiles(track_files(ws, "keypoints", n))
+        cf = open_tracks(ws, "keypoints", n)
         if tuple(cf.image_size) != tuple(image_sizes[n]):
             raise UserError(f"keypoints/{n}.npz is for {cf.image_size[0]}x{cf.image_size[1]} images, "
                             f"calibration.toml says {image_sizes[n][0]}x{image_sizes[n][1]}",
@@ -413,7 +380,7 @@ def open_fit_data(ws: Workspace, cameras: int | None = None, camera_list: list[s
         log.warn(f"fitting from {len(names)} camera: depth comes only from the body model")
     rig = rig_all.subset(names)
     clocks, reference, notes = _read_clocks(ws, names)
-    tracks = {n: CameraFiles(track_files(ws, "landmarks", n)) for n in names}
+    tracks = {n: open_tracks(ws, "landmarks", n) for n in names}
     L = {lt.n for lt in tracks.values()}
     if len(L) != 1 or (n_landmarks is not None and L != {n_landmarks}):
         raise UserError(f"landmark files hold {sorted(L)} landmarks, the body model has {n_landmarks}",

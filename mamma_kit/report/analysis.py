@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mamma_kit.report.data import MIN_VIS, ReportData
+from mamma_kit.report.data import BLOCK, MIN_VIS, ReportData
 
 
 @dataclass
@@ -33,10 +33,19 @@ def _quiet_nan(fn, *args, **kw):
         return fn(*args, **kw)
 
 
+def _blocks(lt):
+    """(frame slice, columns with rows there, their arrays) over a camera's tracks, BLOCK frames at a time."""
+    for a in range(0, lt.n_frames, BLOCK):
+        b = min(a + BLOCK, lt.n_frames)
+        cols, arr = lt.window(a, b, ("valid", "xy", "visibility", "contact", "floor_contact"))
+        yield slice(a, b), cols, arr
+
+
 def reprojection_over_time(data: ReportData) -> tuple[list[Series], list[list], list[str]]:
     """Per camera and person: the median reprojection error (px) per frame of the landmarks
     with visibility > MIN_VIS. Returns the curves, table rows [camera, person, frames, median,
-    p90, landmarks] and notes on cameras that were left out."""
+    p90, landmarks] and notes on cameras that were left out. Each camera is read a block of
+    frames at a time."""
     rig, model = data.rig, data.body_model
     L = len(model.landmark_ids)
     series, rows, notes = [], [], []
@@ -44,41 +53,56 @@ def reprojection_over_time(data: ReportData) -> tuple[list[Series], list[list], 
         if cam not in rig:
             notes.append(f"{cam}: not in calibration.toml")
             continue
-        if lt.n_landmarks != L:
-            notes.append(f"{cam}: landmarks hold {lt.n_landmarks} points, the body model {L}")
+        if lt.n != L:
+            notes.append(f"{cam}: landmarks hold {lt.n} points, the body model {L}")
             continue
         if tuple(lt.image_size) != tuple(rig[cam].size):
             notes.append(f"{cam}: landmark image size differs from calibration.toml")
             continue
         t_ref = data.clock(cam).to_ref(lt.frame_times)
-        for person in data.people:
-            cols = data.track_columns(cam, person.id)
-            if not len(cols):
-                continue
-            X_tl3, inside = data.landmarks_at(person, t_ref)
-            xy_tl2 = rig[cam].project(X_tl3)
-            err_tkl = np.linalg.norm(xy_tl2[:, None] - lt.xy[:, cols], axis=-1)
-            use = (lt.visibility[:, cols] > MIN_VIS) & lt.valid[:, cols, None] & inside[:, None, None]
-            use &= np.isfinite(err_tkl)
-            err_tkl = np.where(use, err_tkl, np.nan)
-            med_t = _quiet_nan(np.nanmedian, err_tkl.reshape(len(t_ref), -1), axis=1)
+        people = [(p, data.track_columns(cam, p.id)) for p in data.people]
+        people = [(p, cols) for p, cols in people if len(cols)]
+        med = {p.id: np.full(len(t_ref), np.nan) for p, _ in people}
+        errs: dict[int, list] = {p.id: [] for p, _ in people}
+        for s, wcols, arr in _blocks(lt):
+            for person, cols in people:
+                sel = np.flatnonzero(np.isin(wcols, cols))
+                if not len(sel):
+                    continue
+                X_tl3, inside = data.landmarks_at(person, t_ref[s])
+                xy_tl2 = rig[cam].project(X_tl3)
+                err_tkl = np.linalg.norm(xy_tl2[:, None] - arr["xy"][:, sel], axis=-1)
+                use = (arr["visibility"][:, sel] > MIN_VIS) & arr["valid"][:, sel, None] & inside[:, None, None]
+                use &= np.isfinite(err_tkl)
+                err_tkl = np.where(use, err_tkl, np.nan)
+                med[person.id][s] = _quiet_nan(np.nanmedian, err_tkl.reshape(len(err_tkl), -1), axis=1)
+                errs[person.id].append(err_tkl[use])
+        for person, _ in people:
+            med_t = med[person.id]
             if not np.isfinite(med_t).any():
                 continue
             series.append(Series(cam, person.id, t_ref, med_t))
-            e = err_tkl[use]
+            e = np.concatenate(errs[person.id])
             rows.append([cam, person.id, int(np.isfinite(med_t).sum()), float(np.median(e)),
                          float(np.percentile(e, 90)), int(e.size)])
     return series, rows, notes
 
 
-def _per_frame_mean(data: ReportData, cam: str, pid: int, field: str) -> np.ndarray:
-    """(T,) mean over the person's landmarks of one probability field in one view (NaN: absent)."""
+def per_frame_means(data: ReportData, cam: str, pids: list[int]) -> dict[int, dict[str, np.ndarray]]:
+    """{person: {"contact", "floor_contact": (T,)}}: the mean over the person's landmarks in one view
+    of each probability per frame (NaN where absent)."""
     lt = data.landmarks[cam]
-    cols = data.track_columns(cam, pid)
-    if not len(cols):
-        return np.full(len(lt.frame_times), np.nan)
-    p_tkl = np.where(lt.valid[:, cols, None], getattr(lt, field)[:, cols], np.nan)
-    return _quiet_nan(np.nanmean, p_tkl.reshape(len(lt.frame_times), -1), axis=1)
+    cols = {p: data.track_columns(cam, p) for p in pids}
+    out = {p: {f: np.full(lt.n_frames, np.nan) for f in ("contact", "floor_contact")} for p in pids}
+    for s, wcols, arr in _blocks(lt):
+        for p in pids:
+            sel = np.flatnonzero(np.isin(wcols, cols[p]))
+            if not len(sel):
+                continue
+            for f in ("contact", "floor_contact"):
+                p_tkl = np.where(arr["valid"][:, sel, None], arr[f][:, sel], np.nan)
+                out[p][f][s] = _quiet_nan(np.nanmean, p_tkl.reshape(len(p_tkl), -1), axis=1)
+    return out
 
 
 def nearest_frame(t_c: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -109,26 +133,28 @@ def contact_over_time(data: ReportData) -> tuple[np.ndarray, dict[int, dict[str,
         if not len(t_c):
             continue
         j, near = nearest_frame(t_c, grid)
+        means = per_frame_means(data, cam, pids)
         for p in pids:
             for key, fld in (("contact", "contact"), ("floor", "floor_contact")):
-                v_t = _per_frame_mean(data, cam, p, fld)
-                out[p][key][ci] = np.where(near, v_t[j], np.nan)
+                out[p][key][ci] = np.where(near, means[p][fld][j], np.nan)
     return grid, out
 
 
 def contact_per_landmark(data: ReportData) -> tuple[np.ndarray, np.ndarray, int]:
     """(L,) mean person-contact and floor-contact probability of every landmark over all views,
     frames and matched tracks, and the number of observations averaged."""
-    L = {lt.n_landmarks for lt in data.landmarks.values()}
+    L = {lt.n for lt in data.landmarks.values()}
     if len(L) != 1:
         return np.zeros(0), np.zeros(0), 0
     L = L.pop()
     sums = np.zeros((2, L))
     n = 0
     for cam, lt in data.landmarks.items():
-        cols = np.flatnonzero([int(t) in data.person_of_track(cam) for t in lt.track_ids])
-        ok_tk = lt.valid[:, cols]
-        for i, fld in enumerate(("contact", "floor_contact")):
-            sums[i] += np.nan_to_num(getattr(lt, fld)[:, cols][ok_tk]).sum(0)
-        n += int(ok_tk.sum())
+        matched = np.flatnonzero([int(t) in data.person_of_track(cam) for t in lt.track_ids])
+        for _, wcols, arr in _blocks(lt):
+            sel = np.flatnonzero(np.isin(wcols, matched))
+            ok_tk = arr["valid"][:, sel]
+            for i, fld in enumerate(("contact", "floor_contact")):
+                sums[i] += np.nan_to_num(arr[fld][:, sel][ok_tk]).sum(0)
+            n += int(ok_tk.sum())
     return sums[0] / max(n, 1), sums[1] / max(n, 1), n

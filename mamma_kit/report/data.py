@@ -1,9 +1,10 @@
 """What the report reads from a workspace, loaded once and only if present.
 
 ``ReportData(ws)`` exposes the workspace's files as objects (None when a file is absent):
-rig and calibration diagnostics, clock models, landmark tracks, identities, fitted people,
-the fit report; plus the body posed at arbitrary reference times, interpolated linearly
-between the two fitted frames around each time.
+rig and calibration diagnostics, clock models, landmark and keypoint tracks (core.filled.CameraTracks:
+read a window of frames at a time, so a take of minutes is never held), identities, fitted people,
+the fit report; plus the body posed at arbitrary reference times, interpolated linearly between the
+two fitted frames around each time.
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ from mamma_kit.core.workspace import Workspace
 
 #: Landmarks count as observed when their visibility exceeds this (as in the fit's report).
 MIN_VIS = 0.5
-#: Frames posed per call when posing many frames (bounds memory).
-POSE_CHUNK = 256
+#: Frames of a camera read (and bodies posed) at once when a figure goes over the take.
+BLOCK = 256
 
 
 @dataclass
@@ -45,7 +46,6 @@ class ReportData:
     def __init__(self, ws: Workspace):
         self.ws = ws
         self.notes: list[str] = []
-        self._posed: dict[int, np.ndarray] = {}  # person id -> (T, L, 3) posed landmarks
 
     # ---- files ---------------------------------------------------------------------------
     @cached_property
@@ -95,18 +95,20 @@ class ReportData:
 
     @cached_property
     def landmarks(self) -> dict:
-        """camera -> LandmarkTracks for every camera with landmarks/<cam>.npz (with the fill's tracks)."""
-        from mamma_kit.core.filled import load_landmarks
+        """camera -> its landmark tracks (core.filled.CameraTracks, with the fill's) for every camera
+        with landmarks/<cam>.npz."""
+        from mamma_kit.core.filled import open_tracks
 
-        return {c: load_landmarks(self.ws, c) for c in self.cameras
+        return {c: open_tracks(self.ws, "landmarks", c) for c in self.cameras
                 if self.ws.landmarks_file(c).is_file()}
 
     @cached_property
     def keypoints(self) -> dict:
-        """camera -> KeypointTracks for every camera with keypoints/<cam>.npz (with the fill's tracks)."""
-        from mamma_kit.core.filled import load_keypoints
+        """camera -> its keypoint tracks (core.filled.CameraTracks, with the fill's) for every camera
+        with keypoints/<cam>.npz."""
+        from mamma_kit.core.filled import open_tracks
 
-        return {c: load_keypoints(self.ws, c) for c in self.cameras
+        return {c: open_tracks(self.ws, "keypoints", c) for c in self.cameras
                 if self.ws.keypoints_file(c).is_file()}
 
     @cached_property
@@ -189,32 +191,25 @@ class ReportData:
         inside = (t >= ft[0] - half) & (t <= ft[-1] + half)
         return i0, i1, a, inside
 
-    def landmarks_posed(self, person: Person) -> np.ndarray:
-        """(T, L, 3) world positions of the landmark vertices at every fitted frame."""
-        cache = self._posed
-        if person.id not in cache:
-            import torch
-
-            from mamma_kit.body.lbs import pose_restricted
-
-            model = self.body_model
-            T = person.result.num_frames
-            out = np.empty((T, len(model.landmark_ids), 3), np.float32)
-            with torch.no_grad():
-                for s in range(0, T, POSE_CHUNK):
-                    prm = person.result.params(slice(s, s + POSE_CHUNK))
-                    tens = {k: torch.as_tensor(np.asarray(v), dtype=torch.float32) for k, v in prm.items()}
-                    v, _ = pose_restricted(model, tens)
-                    out[s:s + POSE_CHUNK] = v.numpy()
-            cache[person.id] = out
-        return cache[person.id]
-
     def landmarks_at(self, person: Person, t_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Landmark vertices (N, L, 3) at reference times (N,), and (N,) inside the fitted span."""
-        X_tl3 = self.landmarks_posed(person)
+        """Landmark vertices (N, L, 3) at reference times (N,), and (N,) inside the fitted span.
+        Only the fitted frames around the asked times are posed."""
+        import torch
+
+        from mamma_kit.body.lbs import pose_restricted
+
         i0, i1, a, inside = self.interpolation(person.frame_times, t_ref)
+        need, inv = np.unique(np.r_[i0, i1], return_inverse=True)
+        X_nl3 = np.empty((len(need), len(self.body_model.landmark_ids), 3), np.float32)
+        with torch.no_grad():
+            for s in range(0, len(need), BLOCK):
+                prm = person.result.params(need[s:s + BLOCK])
+                v, _ = pose_restricted(self.body_model, {k: torch.as_tensor(np.asarray(x), dtype=torch.float32)
+                                                         for k, x in prm.items()})
+                X_nl3[s:s + BLOCK] = v.numpy()
+        j0, j1 = inv[:len(i0)], inv[len(i0):]
         w = a[:, None, None].astype(np.float32)
-        return (1 - w) * X_tl3[i0] + w * X_tl3[i1], inside
+        return (1 - w) * X_nl3[j0] + w * X_nl3[j1], inside
 
     def meshes_at(self, person: Person, t_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full posed meshes (N, V, 3) at reference times (N,), and (N,) inside the fitted span.

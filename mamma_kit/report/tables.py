@@ -178,10 +178,15 @@ def track_table(mask_tracks: dict) -> TableSpec:
 
 
 def keypoint_table(keypoints: dict, mask_tracks: dict) -> TableSpec:
-    """Per camera: person-frames with keypoints against tracked person-frames, and the median score."""
-    return (["camera", "person-frames with keypoints", "tracked person-frames", "median pose score"],
-            [[c, int(k.valid.sum()), int(mask_tracks[c].present.sum()) if c in mask_tracks else "—",
-              f"{np.median(k.score[k.valid]):.2f}" if k.valid.any() else "—"] for c, k in keypoints.items()],
+    """Per camera: person-frames with keypoints against tracked person-frames, and the median score
+    (``keypoints``: camera -> core.filled.CameraTracks)."""
+    rows = []
+    for c, k in keypoints.items():
+        r = k.rows(0, k.n_frames, ("valid", "score"))
+        score = r["score"][r["valid"].astype(bool)]
+        rows.append([c, int(len(score)), int(mask_tracks[c].present.sum()) if c in mask_tracks else "—",
+                     f"{np.median(score):.2f}" if len(score) else "—"])
+    return (["camera", "person-frames with keypoints", "tracked person-frames", "median pose score"], rows,
             "BlazePose keypoints per view")
 
 
