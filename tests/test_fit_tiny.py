@@ -111,22 +111,27 @@ def test_tiny_exact_landmarks_fit_hands(tiny_fit, tmp_path):
 
 
 def test_chunks_as_executor_units_give_fitter_fit(tiny_fit):
-    """fit_workspace runs the chunks as units of the executor (fitting/units.py); the result is
-    Fitter.fit's own: the same shape fit, chunks and cross-fading."""
+    """fit_workspace runs the chunks as units of the executor (fitting/units.py), each reading its
+    own frames' landmarks from the files (open_fit_data); the result is Fitter.fit's own on the
+    take's data in memory: the same shape fit, chunks and cross-fading."""
     from pathlib import Path
 
     from mamma_kit.body.model import load_body_model
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.fitting.data import load_fit_data
+    from mamma_kit.fitting.data import load_fit_data, open_fit_data
     from mamma_kit.fitting.stages import FitConfig, Fitter
-    from mamma_kit.fitting.units import fit_in_units
+    from mamma_kit.fitting.units import fit_chunk_unit, fit_in_units
 
     model = load_body_model("open")
-    data = load_fit_data(Workspace(Path(tiny_fit.root)), n_landmarks=len(model.landmark_ids))
+    ws = Workspace(Path(tiny_fit.root))
+    data = load_fit_data(ws, n_landmarks=len(model.landmark_ids))
     cfg = FitConfig(stages=1, chunk=8, overlap=2, shape_frames=6)
     assert len(Fitter(model, data, cfg).plan_chunks(len(data.frame_times))) > 1
     a = Fitter(model, data, cfg).fit()
-    b = fit_in_units(Fitter(model, data, cfg))
-    assert a.chunks == b.chunks
+    unit = Fitter(model, data, cfg)  # the chunks as a worker runs them (Ray): one unit each, joined after
+    b = unit.fit(run_chunks=lambda chunks, betas: [fit_chunk_unit(ch, unit, betas) for ch in chunks])
+    c = fit_in_units(Fitter(model, open_fit_data(ws, n_landmarks=len(model.landmark_ids)), cfg))
+    assert a.chunks == b.chunks == c.chunks
     for key in ("betas", "pose", "transl", "joints", "observed"):
         assert np.array_equal(getattr(a, key), getattr(b, key)), key
+        assert np.array_equal(getattr(a, key), getattr(c, key)), key

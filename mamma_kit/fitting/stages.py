@@ -624,8 +624,9 @@ class Fitter:
         order); fitting/units.py hands them to the executor."""
         chunks = self.plan_chunks(len(self.data.frame_times))
         betas, stats = self.shape_fit(chunks)
-        if run_chunks is None:  # each chunk's data read as it is fitted: the take is never held whole
-            results = [self.fit_chunk(self.frames(slice(s, e)), betas) for s, e in log.track(chunks, "fit chunks")]
+        if run_chunks is None:  # each chunk read, fitted and joined in turn: neither the take's data
+            # nor every chunk's solver state is ever held at once
+            results = (self.fit_chunk(self.frames(slice(s, e)), betas) for s, e in log.track(chunks, "fit chunks"))
         else:
             results = run_chunks(chunks, betas)
             for (s, e), r in zip(chunks, results):
@@ -646,19 +647,20 @@ class Fitter:
             stats.setdefault("shape_" + k, StageStats("shape_" + k)).add(st)
         return r.betas, stats
 
-    def join(self, chunks: list[tuple[int, int]], results: list[ChunkResult], betas: np.ndarray | None,
+    def join(self, chunks: list[tuple[int, int]], results, betas: np.ndarray | None,
              stats: dict[str, "StageStats"]) -> "FitResult":
-        """The chunks' results cross-faded into one FitResult (axis-angle from here on)."""
+        """The chunks' results (an iterable of ChunkResult, in chunk order: each is added as it comes)
+        cross-faded into one FitResult (axis-angle from here on)."""
         d = self.data
         P, T = len(d.person_ids), len(d.frame_times)
-        if betas is None:  # one chunk: its own shape
-            betas = results[0].betas
         pose = np.zeros((P, T, sk.NUM_JOINTS, 3))
         transl = np.zeros((P, T, 3))
         snaps: dict[str, list] = {}
         wsum = np.zeros(T)
         observed = np.zeros((P, T), bool)
         for ci, ((s, e), r) in enumerate(zip(chunks, results)):
+            if betas is None:  # one chunk: its own shape
+                betas = r.betas
             w = cross_fade_weights(chunks, ci)
             for key, st in [(None, r.state), *r.snapshots.items()]:
                 acc = [pose, transl] if key is None else snaps.setdefault(key, [np.zeros_like(pose),

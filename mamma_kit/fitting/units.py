@@ -38,9 +38,13 @@ def fit_chunk_unit(chunk: tuple[int, int], fitter: Fitter, betas: np.ndarray | N
 
 
 def fit_in_units(fitter: Fitter) -> FitResult:
-    """``fitter.fit()`` with its chunks run as units of the executor (see the module docstring)."""
-    from mamma_kit.core.executor import run_units
+    """``fitter.fit()`` with its chunks run as units of the executor (see the module docstring). On
+    the local executor the chunks run here in order, as Fitter.fit runs them, each joined as it
+    ends (a list of every chunk's solver state would grow with the take)."""
+    from mamma_kit.core.executor import executor_name, run_units
 
+    if executor_name() != "ray":
+        return fitter.fit()
     unit_fitter = copy.copy(fitter)  # its own record of the views set aside (a worker's is sent back)
     unit_fitter.aside = tuple(np.zeros_like(a) for a in fitter.aside)
 
