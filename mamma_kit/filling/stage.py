@@ -20,6 +20,7 @@ import numpy as np
 from mamma_kit.core import log
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.manifest import StageManifest, producer
+from mamma_kit.core.trackrows import RowWriter
 from mamma_kit.core.tracks import KeypointTracks, MaskTracks
 
 # frames per block when the gaps are triangulated (memory: cameras x frames x persons x 33 points)
@@ -28,9 +29,10 @@ BLOCK_FRAMES = 512
 MAX_RUN_GAP = 3
 
 
-def new_tracks(cam: str, masks: MaskTracks, found: list) -> tuple[MaskTracks, KeypointTracks, dict[int, int]]:
+def new_tracks(cam: str, masks: MaskTracks, found: list, keypoints_path) -> tuple[MaskTracks, dict[int, int]]:
     """The found frames as tracks: per person, runs of frames (gaps <= MAX_RUN_GAP) become tracks
-    with ids after the camera's own. Returns masks, keypoints and track id -> person id."""
+    with ids after the camera's own. Writes their keypoints (the model's points) to
+    ``keypoints_path`` and returns their masks and track id -> person id."""
     by_person: dict[int, list] = {}
     for fd in found:
         by_person.setdefault(fd.person, []).append(fd)
@@ -51,14 +53,17 @@ def new_tracks(cam: str, masks: MaskTracks, found: list) -> tuple[MaskTracks, Ke
                                {(fd.frame, k): fd.mask for k, (_, items) in enumerate(runs) for fd in items},
                                {(fd.frame, k): fd.score for k, (_, items) in enumerate(runs) for fd in items},
                                producer("fill"))
-    kt = KeypointTracks.empty(cam, masks.image_size, masks.frame_times, mt.track_ids, model="blazepose-ghum-full")
-    for k, (_, items) in enumerate(runs):
-        for fd in items:
-            kt.valid[fd.frame, k] = True
-            kt.xy[fd.frame, k] = fd.points_p5[:, :2]
-            kt.z[fd.frame, k], kt.visibility[fd.frame, k], kt.presence[fd.frame, k] = fd.points_p5[:, 2:].T
-            kt.score[fd.frame, k] = fd.score
-    return mt, kt, {int(mt.track_ids[k]): int(p) for k, (p, _) in enumerate(runs)}
+    cells = sorted((fd.frame, k, fd) for k, (_, items) in enumerate(runs) for fd in items)
+    header = {"camera": cam, "image_size": masks.image_size, "frame_times": masks.frame_times,
+              "track_ids": mt.track_ids, "model": "blazepose-ghum-full", "producer": producer("fill")}
+    with RowWriter(keypoints_path, KeypointTracks, header, 33) as w:
+        if cells:
+            p5 = np.stack([fd.points_p5 for *_, fd in cells])  # (n, 33, 5)
+            w.append([t for t, *_ in cells], [k for _, k, _ in cells], valid=np.ones(len(cells), bool),
+                     xy=p5[..., :2], z=p5[..., 2], visibility=p5[..., 3], presence=p5[..., 4],
+                     score=np.array([fd.score for *_, fd in cells], np.float32))
+        w.close()
+    return mt, {int(mt.track_ids[k]): int(p) for k, (p, _) in enumerate(runs)}
 
 
 def _camera_gaps(cam: str, cams: list[str], per_cam: dict, covered_tp: np.ndarray, rig, persons: list[int]):
@@ -135,12 +140,11 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
         found = look(est, VideoReader(entry.video, entry.rotation), masks[c], gaps, f"fill {c}")
         row = {"camera": c, "gaps": len(gaps), "found": len(found), "tracks": 0}
         if found:
-            mt, kt, person_of = new_tracks(c, masks[c], found)
+            mt, person_of = new_tracks(c, masks[c], found, ws.fill_file("keypoints", c))
+            outputs += [ws.fill_file("keypoints", c), mt.save(ws.fill_file("masks", c))]
             if read_landmarks is None:
                 read_landmarks = LandmarksReader(options)
-            lt = read_landmarks(ws, c, mt, kt)
-            for kind, obj in (("masks", mt), ("keypoints", kt), ("landmarks", lt)):
-                outputs.append(obj.save(ws.fill_file(kind, c)))
+            outputs.append(read_landmarks.write(ws, c, mt, ws.fill_file("keypoints", c), ws.fill_file("landmarks", c)))
             ident.assignments.setdefault(c, {}).update(person_of)
             for tid in person_of:
                 ident.track_frames[(c, tid)] = int(mt.present[:, list(mt.track_ids).index(tid)].sum())

@@ -150,8 +150,8 @@ def run_landmarks(ws, *, source: str = "net", weights: Path | str | None = None,
 class LandmarksReader:
     """Landmarks of tracks that are not the workspace's masks file (those `mamma-kit fill` adds), with
     the network and settings the stage would use (``options``: capture.toml's [settings.landmarks]):
-    the same crops, hand refinement, contact network and smoothing, so they read like the rest. The
-    networks load once, for every camera read after."""
+    the same crops, hand refinement, contact network and smoothing, so they read like the rest
+    (``write``). The networks load once, for every camera read after."""
 
     def __init__(self, options: dict | None = None, device: str = "cpu"):
         from mamma_kit.landmarks.hands import hand_refiner
@@ -167,17 +167,24 @@ class LandmarksReader:
         self.contact = contact and Predictor(contact, device)
         self.smooth_s = float(SMOOTH_S if self.opts.get("smooth_s") is None else self.opts["smooth_s"])
 
-    def __call__(self, ws, cam: str, masks, keypoints):
+    def write(self, ws, cam: str, masks, keypoints_path: Path, path: Path) -> Path:
+        """The landmarks of ``masks``' tracks (their keypoints in ``keypoints_path``) streamed into
+        ``path``, smoothed as the stage smooths them."""
         from mamma_kit.core.reproducible import one_thread
+        from mamma_kit.core.trackrows import TrackFile
+        from mamma_kit.core.tracks import KeypointTracks
         from mamma_kit.landmarks.inference import run_camera
-        from mamma_kit.landmarks.smooth import smooth_landmarks
 
         entry = ws.load_capture().cameras[cam]
-        with one_thread():
-            lt, _ = run_camera(self.pred, cam, masks, entry.video, int(self.opts.get("batch", 8)),
-                               keypoints=keypoints, hands=self.refiner, contact=self.contact,
-                               rotation=entry.rotation)
-        return smooth_landmarks(lt, self.smooth_s) if self.smooth_s > 0 else lt
+        header = {"camera": cam, "image_size": masks.image_size, "frame_times": masks.frame_times,
+                  "track_ids": masks.track_ids, "landmark_set": self.pred.loaded.landmark_set,
+                  "source": f"mammanet:{self.pred.cfg.name}", "producer": {}}
+        with TrackFile(keypoints_path, KeypointTracks, "keypoint file") as kf, \
+                FileSink(path, header, self.pred.n_landmarks, self.smooth_s) as sink:
+            with one_thread():
+                run_camera(self.pred, cam, masks, entry.video, int(self.opts.get("batch", 8)), keypoints=kf,
+                           hands=self.refiner, contact=self.contact, rotation=entry.rotation, sink=sink)
+            return sink.close()
 
 
 _PREDICTORS: dict = {}
