@@ -29,6 +29,8 @@ from scipy.spatial import cKDTree
 from mamma_kit.body import skeleton as sk
 from mamma_kit.body.proxy import closest_point_on_triangle, edge_neighbours, winding_number
 
+CLOSEST_BATCH = 4096  # points whose closest triangle is searched at once
+
 LIMB_PARTS = ("left_upper_arm", "right_upper_arm", "left_lower_arm", "right_lower_arm", "left_hand", "right_hand",
               "left_upper_leg", "right_upper_leg", "left_lower_leg", "right_lower_leg", "left_foot", "right_foot")
 
@@ -141,18 +143,25 @@ class ContactModel:
             sel = torch.nonzero(fidx == g).flatten()
             near[sel] = torch.topk(torch.cdist(pts[sel], verts_b[g]), self.cfg.k_vertices, dim=1,
                                    largest=False).indices
-        cand = self.vf[near].reshape(n, -1)  # (n, k * D) triangles around them
-        valid = cand >= 0
-        cand = cand.clamp(min=0)
-        tri = verts_b[fidx[:, None, None], self.faces[cand]]  # (n, kD, 3, 3)
-        q, region = closest_point_on_triangle(pts[:, None], tri[..., 0, :], tri[..., 1, :], tri[..., 2, :],
-                                              return_region=True)
-        dd = ((q - pts[:, None]) ** 2).sum(-1).masked_fill(~valid, float("inf"))
-        best = dd.argmin(1)
+        # the closest of the triangles around them, CLOSEST_BATCH points at a time (each point's own
+        # search: the candidates' arrays of crowded frames would hold gigabytes at once)
+        f = torch.empty(n, dtype=torch.long)
+        reg = torch.empty(n, dtype=torch.long)
+        qb = torch.empty(n, 3, dtype=pts.dtype)
+        dist2 = torch.empty(n, dtype=pts.dtype)
+        for a in range(0, n, CLOSEST_BATCH):
+            sl = slice(a, min(a + CLOSEST_BATCH, n))
+            cand = self.vf[near[sl]].reshape(sl.stop - a, -1)  # (m, k * D) triangles around them
+            valid = cand >= 0
+            cand = cand.clamp(min=0)
+            tri = verts_b[fidx[sl, None, None], self.faces[cand]]  # (m, kD, 3, 3)
+            q, region = closest_point_on_triangle(pts[sl, None], tri[..., 0, :], tri[..., 1, :], tri[..., 2, :],
+                                                  return_region=True)
+            dd = ((q - pts[sl, None]) ** 2).sum(-1).masked_fill(~valid, float("inf"))
+            best = dd.argmin(1)
+            ar = torch.arange(sl.stop - a)
+            f[sl], reg[sl], qb[sl], dist2[sl] = cand[ar, best], region[ar, best], q[ar, best], dd[ar, best]
         ar = torch.arange(n)
-        f = cand[ar, best]
-        reg = region[ar, best]
-        qb = q[ar, best]
         # pseudo-normal of the closest feature: face, vertex, or edge (sum of its two faces)
         pn = nf[fidx, f]
         fv = self.faces[f]
@@ -162,7 +171,7 @@ class ContactModel:
         other = self.nb[f, (reg - 4).clamp(0, 2)].clamp(min=0)
         pn = torch.where(ise[:, None], nf[fidx, f] + nf[fidx, other], pn)
         sign = torch.where(((pts - qb) * pn).sum(-1) < 0, -1.0, 1.0)
-        dist = dd[ar, best].sqrt()
+        dist = dist2.sqrt()
         # a posed, decimated proxy folds onto itself at curled fingers, where the pseudo-normal's
         # sign can be wrong: there, confirm every "inside" and every point within 1 cm of the
         # surface by the generalized winding number (robust to folds; O(triangles) per point,
