@@ -126,3 +126,15 @@ def test_row_writer_streams_rows_in_order_and_refuses_them_out_of_order(tmp_path
         w.append(t[:2], k[:2], valid=np.ones(2, bool))
         raise RuntimeError("stopped")
     assert not (tmp_path / "x.npz").exists() and not list(tmp_path.glob(".*"))
+
+
+def test_a_camera_with_no_tracks_or_no_frames_saves_and_reads_back(tmp_path):
+    """A board-only view has no tracks; an empty take has no frames: both still write a file."""
+    from mamma_kit.core.trackrows import TrackFile
+
+    for T, ids in ((5, np.zeros(0, int)), (0, np.array([1, 2]))):
+        lt = LandmarkTracks.empty("cam0", (64, 48), np.arange(T) / 30, ids, 8, "set", "src")
+        lt.save(tmp_path / "e.npz")
+        with TrackFile(tmp_path / "e.npz", LandmarkTracks) as tf:
+            back = tf.window()
+        assert back.xy.shape == (T, len(ids), 8, 2) and not back.valid.any()

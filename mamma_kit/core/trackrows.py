@@ -89,8 +89,7 @@ def empty_cells(spec: dict, T: int, K: int) -> dict[str, np.ndarray]:
 
 
 def _is_fill(a: np.ndarray, fill) -> np.ndarray:
-    """(N, ...) -> (N,): every value of the row equals ``fill`` (NaN equals NaN)."""
-    a = a.reshape(len(a), -1)
+    """(N, W) -> (N,): every value of the row equals ``fill`` (NaN equals NaN)."""
     same = np.isnan(a) if isinstance(fill, float) and np.isnan(fill) else a == fill
     return same.all(1)
 
@@ -100,9 +99,9 @@ def occupied(tracks) -> np.ndarray:
     spec = tracks.cell_spec(tracks.n_points)
     T, K = len(tracks.frame_times), len(tracks.track_ids)
     keep = np.zeros((T, K), bool)
-    for name, (_, _, fill) in spec.items():
-        a = getattr(tracks, name)
-        keep |= ~_is_fill(a.reshape(T * K, -1), fill).reshape(T, K)
+    for name, (shape, _, fill) in spec.items():
+        a = getattr(tracks, name).reshape(T * K, int(np.prod(shape)))  # explicit width: T * K may be 0
+        keep |= ~_is_fill(a, fill).reshape(T, K)
     return keep
 
 
@@ -312,7 +311,7 @@ class TrackFile:
         out = None
         for k, v in d.items():
             F, K = v.shape[:2]
-            o = ~_is_fill(v.reshape(F * K, -1), self.spec[k][2]).reshape(F, K)
+            o = ~_is_fill(v.reshape(F * K, int(np.prod(self.spec[k][0]))), self.spec[k][2]).reshape(F, K)
             out = o if out is None else out | o
         return out if out is not None else np.zeros((0, len(self.track_ids)), bool)
 
