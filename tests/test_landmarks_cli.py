@@ -225,3 +225,18 @@ def test_the_contact_head_comes_from_the_single_query_network_under_a_keypoint_g
     assert contact_network(load_model(EMBEDDED_DIR / "embedded.pt"), "auto") is None
     with pytest.raises(UserError, match="image-only"):
         contact_network(kp, EMBEDDED_DIR / "embedded-kp.pt")
+
+
+def test_the_contact_network_reads_only_people_near_another():
+    """Person contact needs another person near in the image (touching people's boxes meet in
+    every view that sees both): a person whose box, grown by a tenth of its height, meets no other
+    tracked person's box is not given to the contact network (its contact is 0)."""
+    from mamma_kit.landmarks.inference import alone_in_frame
+
+    nan = np.nan
+    boxes = np.array([[0, 0, 10, 20], [12, 0, 22, 20], [100, 100, 110, 120], [nan, nan, nan, nan],
+                      [0, 50, 10, 70]], float)
+    assert not alone_in_frame(boxes, 0) and not alone_in_frame(boxes, 1)  # 2 px apart: within 2 px
+    assert alone_in_frame(boxes, 2)  # far from everyone
+    assert alone_in_frame(boxes, 4)  # 30 px below the first: beyond its grown box (2 px)
+    assert alone_in_frame(boxes[[2, 3]], 0)  # an absent track (NaN) is nobody

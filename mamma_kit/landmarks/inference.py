@@ -221,6 +221,24 @@ class _Job:
     extra: dict
     hand: dict | None = None  # the frame, full masks and keypoints, for the hand refinement
     contact_crop: tuple | None = None  # (image, mask, box) cropped for the contact network
+    alone: bool = False  # no other tracked person near in the frame: no person contact to see
+
+
+# a person's box, grown by this share of its height, that meets no other tracked person's box: they
+# touch nobody the camera tracks, and the contact network is not run on them (their person contact
+# is 0). Touching people's boxes overlap in every view that sees both.
+CONTACT_NEAR_SHARE = 0.1
+
+
+def alone_in_frame(boxes_k4: np.ndarray, k: int, share: float = CONTACT_NEAR_SHARE) -> bool:
+    """Whether box k (x1, y1, x2, y2; NaN rows absent), grown by ``share`` of its height, meets no other box."""
+    b = boxes_k4[k]
+    g = share * (b[3] - b[1])
+    others = np.delete(boxes_k4, k, axis=0)
+    others = others[np.isfinite(others).all(1)]
+    meet = (others[:, 0] <= b[2] + g) & (others[:, 2] >= b[0] - g) & (others[:, 1] <= b[3] + g) & \
+        (others[:, 3] >= b[1] - g)
+    return not bool(meet.any())
 
 
 def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, np.ndarray]],
@@ -248,8 +266,9 @@ def _crop_jobs(pred: Predictor, masks: MaskTracks, frames: Iterator[tuple[int, n
                     extra = pred.crop_inputs(img, res[2], points, others)
                 if hands:
                     hand = {"image": img, "mask": m, "tight_box": tb, "keypoints": points, "others": others}
+            alone = contact is not None and alone_in_frame(masks.boxes[t], int(k))
             yield _Job(int(t), int(k), res[0], res[1], res[2], extra, hand,
-                       contact.crop(img, m, tb) if contact is not None else None)
+                       contact.crop(img, m, tb) if contact is not None and not alone else None, alone)
 
 
 def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: int = 8,
@@ -259,7 +278,8 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
                ) -> tuple[LandmarkTracks | None, dict]:
     """Landmarks for every (frame, track) of one camera with a non-empty mask, streaming the video.
     ``hands``: a hands.HandRefiner that re-reads each hand at the frame's resolution. ``contact``: a
-    second network (its own crops) whose person-contact head replaces ``pred``'s.
+    second network (its own crops) whose person-contact head replaces ``pred``'s, run only on people
+    near another tracked person (``alone_in_frame``: the others' person contact is 0).
     ``keypoints``: the camera's keypoints (a KeypointTracks, or its file as a core.trackrows.TrackFile;
     on the mask tracks' frames and tracks), which keypoint-guided models read. ``frame_range``: only the
     mask frames start:stop (a unit of a split camera; every crop is independent of the others, so the
@@ -321,6 +341,7 @@ def run_camera(pred: Predictor, cam: str, masks: MaskTracks, video_path, batch: 
                 net_c = contact.predict_crops(np.stack([cc[i][0] for i in keep]),
                                               np.stack([cc[i][1] for i in keep]) if contact.cfg.use_mask else None)
                 res["contact"][keep] = net_c["contact"]
+            res["contact"][[i for i, j in enumerate(pending) if j.alone]] = 0.0
         ti = np.array([j.t for j in pending])
         ki = np.array([j.k for j in pending])
         # the next job's frame is at or after the last one's: the frames before that are complete
