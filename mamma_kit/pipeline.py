@@ -1,12 +1,12 @@
 """capture-to-smplx: the whole chain on one workspace, each stage cached by its inputs.
 
-    calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> report
+    calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> export -> report
 
 (sync runs after track and keypoints when its method is motion or auto: motion sync reads the
 people's keypoints.)
 
 Every stage is the same function its own command calls (calibration.stage, timing.stage,
-masks.stage, landmarks.stage, matching.stage, fitting.stage, report.stage),
+masks.stage, landmarks.stage, matching.stage, fitting.stage, export.stage, report.stage),
 so a stage is skipped exactly when its manifest (.cache/<stage>.json, per camera for track
 and landmarks) says its inputs, settings and outputs are unchanged, and recomputed - saying
 why - when anything it reads changed. Outputs are written atomically and a manifest only
@@ -26,6 +26,7 @@ Stage options come from capture.toml, e.g.::
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25  window = 2.0
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
                            hand_points = false   (the hand model's points in the fit; default true)
+    [settings.export]      formats = ["gltf", "bvh", "trc", "c3d", "amass"]   (default ["gltf"]; [] writes none)
     [settings.report]      video = true
     [settings]             executor = "ray"   ray_address = "HOST:6379"   (core/executor.py; default local)
 
@@ -54,6 +55,7 @@ KNOWN = {
     "match": {"lam", "max_distance", "min_affinity", "window", "plots"},
     "fill": {"enabled"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model", "hand_points"},
+    "export": {"formats"},
     "report": {"video"},
 }
 
@@ -118,6 +120,8 @@ def _key_facts(stage: str, res: dict) -> str:
             med = [v["median"] for v in rp.values() if v.get("landmarks")]
             return (f"{len(res.get('persons', []))} person(s) x {res.get('frames')} frames, median reprojection "
                     f"{sum(med) / len(med):.2f} px" if med else "")
+        if stage == "export":
+            return ", ".join(Path(f["path"]).name for f in res.get("files", []))
         if stage == "report":
             return str(res.get("path", ""))
     except (KeyError, TypeError, ZeroDivisionError):
@@ -204,6 +208,10 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         res = fit_workspace(ws, opts.get("cameras"), opts.get("camera_list"), int(opts.get("stages", 4)),
                             opts.get("body_model"), cfg, command="mamma-kit capture-to-smplx", force=force,
                             threads=opts.get("threads"))
+    elif stage == "export":
+        from mamma_kit.export.stage import DEFAULT_FORMATS, run_export
+
+        res = run_export(ws, formats=opts.get("formats", DEFAULT_FORMATS), force=force)
     elif stage == "report":
         from mamma_kit.report.stage import run_report
 

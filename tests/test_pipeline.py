@@ -66,12 +66,12 @@ def test_first_run_runs_every_stage_and_second_skips_all(reference):
     ws, run = reference
     st = {k: v["status"] for k, v in run["stages"].items()}
     assert st == {"calibrate": "provided", "sync": "ran", "track": "ran", "keypoints": "ran", "landmarks": "ran", "match": "ran",
-                  "fill": "skipped", "fit": "ran", "report": "ran"}  # fill: nothing to read new tracks with
-    assert (ws / "report" / "index.html").is_file()
+                  "fill": "skipped", "fit": "ran", "export": "ran", "report": "ran"}  # fill: nothing to read new tracks with
+    assert (ws / "report" / "index.html").is_file() and (ws / "export" / "capture.glb").is_file()
     again = capture_to_smplx(ws, progress=False)
     assert {k: v["status"] for k, v in again["stages"].items()} == {
         "calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "skipped", "match": "skipped",
-        "fill": "skipped", "fit": "skipped", "report": "skipped"}
+        "fill": "skipped", "fit": "skipped", "export": "skipped", "report": "skipped"}
     # the fit recovers the person (the numbers themselves are tested in test_fit_tiny.py)
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.evaluation.fit import evaluate

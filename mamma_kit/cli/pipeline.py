@@ -80,14 +80,16 @@ def init_cmd(
 def capture_to_smplx_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace (capture.toml; see `mamma-kit init`)."),
     from_stage: Optional[str] = typer.Option(None, "--from", help="First stage to run: calibrate, sync, track, "
-                                                                  "keypoints, landmarks, match, fit or report."),
+                                                                  "keypoints, landmarks, match, fill, fit, export or "
+                                                                  "report."),
     to_stage: Optional[str] = typer.Option(None, "--to", help="Last stage to run."),
     force: bool = typer.Option(False, "--force", help="Recompute every selected stage even if nothing changed."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
-    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> report, each stage skipped
-    when its inputs are unchanged; an interrupted run resumes where it stopped.
+    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> export -> report, each
+    stage skipped when its inputs are unchanged; an interrupted run resumes where it stopped. The
+    export writes export/capture.glb (capture.toml \\[settings.export] formats picks others).
 
     Stage options come from capture.toml's \\[settings.<stage>] tables."""
     from mamma_kit.pipeline import capture_to_smplx, print_summary

@@ -60,6 +60,13 @@ class SmplxResult:
     def num_frames(self) -> int:
         return int(self.transl.shape[0])
 
+    def take(self, frames: np.ndarray) -> "SmplxResult":
+        """The result on the frames ``frames`` (indices, in order)."""
+        from dataclasses import replace
+
+        per_frame = {k: getattr(self, k)[frames] for k in (*POSE_KEYS, "joints", "frame_times")}
+        return replace(self, **per_frame)
+
     def params(self, frames: slice | np.ndarray | int | None = None) -> dict[str, np.ndarray]:
         """LBS parameter dict (body.lbs): per-frame arrays (T', n) and betas (16,) broadcast.
         ``frames`` selects frames (an int keeps a leading dim of 1)."""

@@ -39,7 +39,7 @@ from typing import Any
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_toml, write_toml
 
-STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fill", "fit", "report")
+STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fill", "fit", "export", "report")
 
 
 ROTATIONS = (0, 90, 180, 270)
@@ -181,6 +181,11 @@ class Workspace:
     def fill_file(self, kind: str, cam: str) -> Path:
         """fill/<kind>/<cam>.npz, kind one of masks, keypoints, landmarks."""
         return self.fill_dir / kind / f"{cam}.npz"
+
+    @property
+    def export_dir(self) -> Path:
+        """export/: the fit in other tools' formats (``mamma-kit export``)."""
+        return self.root / "export"
 
     def person_file(self, k: int) -> Path:
         return self.smplx_dir / f"person_{k}.npz"

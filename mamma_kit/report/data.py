@@ -33,13 +33,6 @@ class Person:
         return self.result.frame_times
 
 
-def person_colour(pid: int) -> tuple[float, float, float]:
-    """One RGB colour in [0, 1] per person id, shared by every figure and overlay."""
-    import matplotlib
-
-    return tuple(matplotlib.colormaps["tab10"](int(pid) % 10)[:3])
-
-
 class ReportData:
     """Lazily loaded inputs of the report (see module doc)."""
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mamma_kit.core.io import atomic_path
-from mamma_kit.report.data import person_colour
+from mamma_kit.core.colour import person_colour
 
 DPI = 100
 GT_LABELS = {"mpjpe_mm": "MPJPE", "pa_mpjpe_mm": "PA-MPJPE", "mpjpe_body_mm": "MPJPE body",

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from mamma_kit.core.io import atomic_write_bytes
-from mamma_kit.report.data import ReportData, person_colour
+from mamma_kit.core.colour import person_colour
+from mamma_kit.report.data import ReportData
 
 ALPHA = 0.6  # mesh opacity over the video
 MAX_CANDIDATES = 2_000_000  # candidate pixels per rasterisation batch (bounds memory)

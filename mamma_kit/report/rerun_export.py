@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from mamma_kit.core.errors import UserError
-from mamma_kit.report.data import ReportData, person_colour
+from mamma_kit.core.colour import person_colour
+from mamma_kit.report.data import ReportData
 
 MAX_FRAMES = 900
 POSE_CHUNK = 64
