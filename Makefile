@@ -9,9 +9,9 @@ BIN := $(VENV)/bin
 TORCH_SPEC ?= torch==2.13.0
 DEMO_OUT ?= demo-out
 
-.PHONY: env demo test browser clean
+.PHONY: env demo test browser viewer clean
 
-env: $(VENV)/.installed
+env: $(VENV)/.installed viewer
 
 $(VENV)/.installed: pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -31,8 +31,16 @@ browser:
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
 	  || echo "chromium not installed: the report's browser test will be skipped"; }
 
+# three.js for the report's 3D view, from the npm registry (package.json, package-lock.json); without
+# npm the report says how to get it and the view's browser test is skipped.
+viewer: node_modules/.package-lock.json
+
+node_modules/.package-lock.json: package.json package-lock.json
+	@if command -v npm >/dev/null 2>&1; then npm ci --no-audit --no-fund --loglevel=error; \
+	  else echo "npm not found: the report's 3D view needs three.js (install Node.js, then make viewer)"; fi
+
 test: env browser
 	$(BIN)/python -m pytest
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache node_modules

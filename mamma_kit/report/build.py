@@ -213,6 +213,24 @@ class _Builder:
                 s.note(f"no landmark has a mean {label} probability of {MIN_CONTACT:.0%} or more")
 
     # ---- 6. overlays ------------------------------------------------------------------------
+    def view3d_section(self) -> Section:
+        s = Section("view3d", "3D view")
+        d = self.d
+        if not d.people:
+            s.missing("no fitted bodies to show", "mamma-kit fit WORKSPACE")
+            return s
+        from mamma_kit.core.colour import person_colour
+        from mamma_kit.report import view3d
+
+        self.say("3D view")
+        people = [(p.id, p.result) for p in d.people]
+        html_text, caption = view3d.viewer_html(people, d.body_model, d.rig, {k: person_colour(k) for k, _ in people})
+        if html_text is None:
+            s.note(caption, "missing")
+        else:
+            s.embed("view3d", html_text, caption)
+        return s
+
     def overlays_section(self) -> Section:
         s = Section("overlays", "Overlays")
         d = self.d
@@ -271,8 +289,8 @@ class _Builder:
 def build_sections(b: _Builder) -> list[Section]:
     """Every section whose inputs exist, in order; an unreadable input spoils its section only."""
     out = []
-    for make in (b.rig_section, b.sync_section, b.tracks_section, b.fit_section, b.contact_section,
-                 b.overlays_section, b.gt_section):
+    for make in (b.rig_section, b.sync_section, b.tracks_section, b.fit_section, b.view3d_section,
+                 b.contact_section, b.overlays_section, b.gt_section):
         try:
             s = make()
         except UserError as e:

@@ -47,7 +47,16 @@ class Note:
     kind: str = "info"  # info | missing | warn
 
 
-Block = Union[Figure, Video, Table, Note]
+@dataclass
+class Embed:
+    """A self-contained piece of page made by this package (the 3D view) and its caption."""
+
+    name: str
+    html: str
+    caption: str = ""
+
+
+Block = Union[Figure, Video, Table, Note, Embed]
 
 
 @dataclass
@@ -68,6 +77,9 @@ class Section:
 
     def note(self, text: str, kind: str = "info") -> None:
         self.blocks.append(Note(text, kind))
+
+    def embed(self, name: str, html_text: str, caption: str = "") -> None:
+        self.blocks.append(Embed(name, html_text, caption))
 
     def missing(self, what: str, command: str) -> None:
         """A line saying which input is missing and which command makes it."""
@@ -210,6 +222,9 @@ def _block(b: Block) -> str:
                 f"<figcaption>{html.escape(b.caption)}</figcaption></figure>")
     if isinstance(b, Table):
         return _table(b)
+    if isinstance(b, Embed):
+        return (f'<figure data-embed="{html.escape(b.name)}">{b.html}'
+                f"<figcaption>{html.escape(b.caption)}</figcaption></figure>")
     return f'<p class="note {b.kind}">{b.text}</p>'  # note texts are built by this package (may hold <code>)
 
 
