@@ -25,7 +25,7 @@ MESH_FRAMES = 20
 
 
 def gltf_errors(glb: Path, people, model) -> tuple[float, np.ndarray]:
-    """Largest joint error (m) over every person and frame; vertex errors (m) at sampled frames."""
+    """Largest joint error (m) over every person and frame; vertex errors (m, frames x V) at sampled frames."""
     from mamma_kit.body.lbs import pose_mesh_np
     from mamma_kit.export.gltf_read import GltfScene
 
@@ -49,7 +49,7 @@ def gltf_errors(glb: Path, people, model) -> tuple[float, np.ndarray]:
                 skinned = np.einsum("vk,vkab,vb->va", W, M[J], rest)[:, :3] @ Z_UP_TO_Y_UP
                 ref, _ = pose_mesh_np(model, r.params(f))
                 verts.append(np.linalg.norm(skinned - ref[0], axis=1))
-    return worst, np.concatenate(verts)
+    return worst, np.stack(verts)
 
 
 def main() -> None:
@@ -79,6 +79,10 @@ def main() -> None:
         print(f"  glTF played back: joints at most {worst * 1e6:.1f} µm from the fit's over every frame; mesh "
               f"(four weights per vertex) median {np.median(err) * 1e3:.3f} mm, 99th percentile "
               f"{np.percentile(err, 99) * 1e3:.2f} mm, worst {err.max() * 1e3:.1f} mm from the fit's")
+        many = int(((model.weights_dense > 0).sum(1) > 4).sum())
+        worst_part = model.part_names[model.vertex_parts[int(err.max(0).argmax())]]
+        print(f"  vertices with more than four skin weights: {many} of {model.num_vertices}; the worst one "
+              f"is on the {worst_part.replace('_', ' ')}")
 
 
 if __name__ == "__main__":
