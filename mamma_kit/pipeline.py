@@ -118,8 +118,12 @@ def _key_facts(stage: str, res: dict) -> str:
         if stage == "fit":
             rp = res.get("reprojection_px", {})
             med = [v["median"] for v in rp.values() if v.get("landmarks")]
+            ch = res.get("checks") or {}
+            checks = ("" if not ch else "; physical checks passed" if ch["passed"] and not ch["flags"] else
+                      f"; physical checks: {ch['impossible_frames']} impossible, {ch['doubtful_frames']} doubtful "
+                      "person-frames")
             return (f"{len(res.get('persons', []))} person(s) x {res.get('frames')} frames, median reprojection "
-                    f"{sum(med) / len(med):.2f} px" if med else "")
+                    f"{sum(med) / len(med):.2f} px" + checks if med else "")
         if stage == "export":
             return ", ".join(Path(f["path"]).name for f in res.get("files", []))
         if stage == "report":
@@ -255,7 +259,11 @@ def capture_to_smplx(workspace: str | Path, from_stage: str | None = None, to_st
                                  "facts": facts, "summary": res}
             log.info(f"    {stage}: {res['status']} in {secs:.1f} s" + (f" - {facts}" if facts else ""))
     run.seconds = time.perf_counter() - t0
-    return run.to_dict()
+    out = run.to_dict()
+    fit = run.stages.get("fit", {}).get("summary", {})
+    if fit.get("checks"):
+        out["checks"] = {k: fit["checks"][k] for k in ("passed", "impossible_frames", "doubtful_frames", "by_check")}
+    return out
 
 
 def print_summary(summary: dict) -> None:
@@ -270,6 +278,12 @@ def print_summary(summary: dict) -> None:
     t.add_row("total", "", f"{summary['seconds']:.1f}", "")
     if not log.is_quiet():
         log.console.print(t)
+    fit = summary["stages"].get("fit", {}).get("summary", {})
+    if fit.get("skipped") and fit.get("checks") and fit["checks"]["flags"]:  # a fit that ran said them already
+        from mamma_kit.fitting.checks import summary_lines
+
+        for line in summary_lines(fit["checks"]):
+            log.warn(f"fit check: {line}")
 
 
 # ---- mamma-kit init ---------------------------------------------------------------------

@@ -47,6 +47,7 @@ def test_tiny_fit_recovers_joints(tiny_fit, cli):
     rep = json.loads(r.out)
     assert rep["stages"] == 4 and rep["persons"][0]["frames_observed"] == rep["frames"]
     assert set(rep["stage_stats"]) >= {"init", "stage1", "stage2", "stage3"}
+    assert rep["checks"]["passed"] and rep["checks"]["flags"] == [], rep["checks"]  # a good capture flags nothing
     # every view's landmarks fit to about the noise level (sigma ~2 px here)
     for cam, e in rep["reprojection_px"].items():
         assert e["median"] < 4.0, (cam, e)

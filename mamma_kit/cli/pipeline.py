@@ -84,6 +84,9 @@ def capture_to_smplx_cmd(
                                                                   "report."),
     to_stage: Optional[str] = typer.Option(None, "--to", help="Last stage to run."),
     force: bool = typer.Option(False, "--force", help="Recompute every selected stage even if nothing changed."),
+    strict: bool = typer.Option(False, "--strict", help="Exit with code 3 when the fit's physical checks find a "
+                                                        "body that cannot be (at or behind a camera, under the "
+                                                        "floor, too fast, two persons in one place)."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
@@ -100,3 +103,5 @@ def capture_to_smplx_cmd(
         emit_json(summary)
     else:
         print_summary(summary)
+    if strict and not summary.get("checks", {}).get("passed", True):
+        raise typer.Exit(3)

@@ -6,4 +6,4 @@
 """
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
-__all__ = ["cameras", "contact", "data", "stage", "stages"]
+__all__ = ["cameras", "checks", "contact", "data", "stage", "stages"]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mamma_kit.fitting.checks import check_fit, rest_heights, summary_lines
 from mamma_kit.fitting.stages import FitConfig, Fitter, FitResult
 
 REPORT_NAME = "fit_report.json"
@@ -161,6 +162,9 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     for old in ws.person_files():  # a person from an earlier run that this run did not fit
         if old not in written:
             old.unlink()
+    checks = physical_checks(ws, model, data, result)
+    for line in summary_lines(checks):
+        log.warn(f"fit check: {line}")
     report = {
         "stage": "fit", "skipped": False, "body_model": model.name, "cameras": data.cameras,
         "reference": data.reference, "frame_camera": data.frame_camera, "stages": stages,
@@ -187,10 +191,22 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         "seconds": round(secs, 2), "threads": torch.get_num_threads(),
         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "notes": data.notes,
+        "checks": checks,
     }
     write_json(report_path, report)
     manifest.record(inputs, settings, written + [report_path], {"persons": len(written), "seconds": secs}, secs)
     return report
+
+
+def physical_checks(ws, model, data, result: FitResult) -> dict:
+    """fitting.checks on the fitted bodies (the floor is known where calibration found it)."""
+    from mamma_kit.core.calibfile import read_calibration
+
+    floor = False
+    if ws.calibration.is_file():
+        floor = read_calibration(ws.calibration)[1]["rig"].get("world", {}).get("source") == "floor"
+    return check_fit(result.joints, result.observed, data.present, result.frame_times, data.rig, floor,
+                     rest_heights(model, result.betas), list(result.person_ids))
 
 
 def report_path(ws) -> Path:

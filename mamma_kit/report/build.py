@@ -19,7 +19,7 @@ from mamma_kit.core.io import atomic_write_text
 from mamma_kit.report.data import ReportData
 from mamma_kit.report.html import Section, render_page
 from mamma_kit.report.tables import (AFFINITIES_CAPTION, CALIB_ORDER, CONTACT_TIME_CAPTION, GT_CAPTION,
-                                     REPROJECTION_CAPTION, SYNC_ORDER, calib_caption, calibration_tables,
+                                     REPROJECTION_CAPTION, SYNC_ORDER, calib_caption, calibration_tables, checks_table,
                                      contact_landmarks_caption, fit_report_tables, identity_tables, keypoint_table,
                                      metric_tables, n_of, ordered_pngs, overlay_caption, overlay_video_caption,
                                      overview_table, rig_caption, sync_caption, sync_tables, track_table)
@@ -141,6 +141,11 @@ class _Builder:
                 s.table(*t)
             for n in rep.get("notes", []) or []:
                 s.note(n)
+            if rep.get("checks"):
+                table, verdict = checks_table(rep["checks"])
+                s.note(verdict, "info" if rep["checks"]["passed"] else "warn")
+                if table:
+                    s.table(*table)
         else:
             s.missing("no smplx/fit_report.json", "mamma-kit fit WORKSPACE --force")
         if d.rig is None or not d.landmarks:

@@ -249,3 +249,22 @@ def metric_tables(group: str, metrics: dict) -> list[TableSpec]:
     if scalars:
         out.insert(0, (["metric", "value"], scalars, group))
     return out
+
+
+CHECKS_CAPTION = ("physical checks (fitting/checks.py): impossible bodies (at or behind a camera that sees them, "
+                  "under the floor, faster than a sprinter, two persons in one place) and doubtful ones, with "
+                  "their likely cause; see docs/fitting.md")
+
+
+def checks_table(checks: dict) -> tuple[TableSpec | None, str]:
+    """The fit's physical-check flags as a table (None when nothing was flagged) and a one-line verdict."""
+    flags = sorted(checks.get("flags", []), key=lambda f: (f["severity"] != "impossible", f["person"], f["frames"][0]))
+    verdict = ("physical checks: every fitted body is possible" + ("" if checks.get("floor_known") else
+                                                                    " (floor unknown: not checked against it)")
+               if not flags else f"physical checks: {checks['impossible_frames']} impossible and "
+               f"{checks['doubtful_frames']} doubtful person-frames")
+    if not flags:
+        return None, verdict
+    rows = [[f["person"], f["check"].replace("_", " "), f["severity"], f"{f['frames'][0]}-{f['frames'][1]}",
+             f"{f['times_s'][0]:.2f}-{f['times_s'][1]:.2f}", f["what"], f["cause"]] for f in flags]
+    return (["person", "check", "severity", "frames", "time (s)", "measured", "likely cause"], rows, CHECKS_CAPTION), verdict
