@@ -16,22 +16,18 @@ def checks_of(root: Path) -> dict:
     from mamma_kit.body.model import load_body_model
     from mamma_kit.core.smplxfile import read_smplx_result
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.fitting.checks import check_fit, rest_heights
     from mamma_kit.fitting.data import open_fit_data
-    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.fitting.stage import physical_checks
 
     ws = Workspace(root)
     res = {int(p.stem.split("_")[1]): read_smplx_result(p) for p in ws.person_files()}
     model = load_body_model(ws.load_capture().body_model)
     data = open_fit_data(ws, n_landmarks=len(model.landmark_ids))
     pids = [p for p in data.person_ids if p in res]
-    rows = [data.person_ids.index(p) for p in pids]
-    joints = np.stack([res[p].joints for p in pids])
-    observed = data.present[:, rows].sum(0) >= min(2, len(data.cameras))  # the fit's observed frames
-    floor = read_calibration(ws.calibration)[1]["rig"].get("world", {}).get("source") == "floor"
-    betas = np.stack([res[p].betas for p in pids])
-    return check_fit(joints, observed, data.present[:, rows], data.frame_times, data.rig, floor,
-                     rest_heights(model, betas), pids)
+    seen = data.present[:, [data.person_ids.index(p) for p in pids]]
+    observed = seen.sum(0) >= min(2, len(data.cameras))  # the fit's observed frames
+    return physical_checks(ws, model, data.rig, data.frame_times, np.stack([res[p].joints for p in pids]), observed,
+                           seen, np.stack([res[p].betas for p in pids]), pids)
 
 
 def main() -> None:

@@ -162,7 +162,8 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     for old in ws.person_files():  # a person from an earlier run that this run did not fit
         if old not in written:
             old.unlink()
-    checks = physical_checks(ws, model, data, result)
+    checks = physical_checks(ws, model, data.rig, result.frame_times, result.joints, result.observed, data.present,
+                             result.betas, result.person_ids)
     for line in summary_lines(checks):
         log.warn(f"fit check: {line}")
     report = {
@@ -198,15 +199,16 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     return report
 
 
-def physical_checks(ws, model, data, result: FitResult) -> dict:
-    """fitting.checks on the fitted bodies (the floor is known where calibration found it)."""
+def physical_checks(ws, model, rig, times_t, joints_ptj3, observed_pt, seen_cpt, betas_pb, person_ids) -> dict:
+    """fitting.checks on fitted bodies (arrays as check_fit takes them; the floor is known where
+    calibration found it)."""
     from mamma_kit.core.calibfile import read_calibration
 
     floor = False
     if ws.calibration.is_file():
         floor = read_calibration(ws.calibration)[1]["rig"].get("world", {}).get("source") == "floor"
-    return check_fit(result.joints, result.observed, data.present, result.frame_times, data.rig, floor,
-                     rest_heights(model, result.betas), list(result.person_ids))
+    return check_fit(joints_ptj3, observed_pt, seen_cpt, times_t, rig, floor, rest_heights(model, betas_pb),
+                     list(person_ids))
 
 
 def report_path(ws) -> Path:
