@@ -20,6 +20,9 @@ def run_export(ws, formats=DEFAULT_FORMATS, force: bool = False) -> dict:
     if unknown:
         raise UserError(f"capture.toml [settings.export] formats: unknown {', '.join(unknown)}",
                         f"use some of: {', '.join(FORMATS)}")
+    if not ws.person_files():
+        log.info("export: no fitted people (smplx/); nothing to export")
+        return {"stage": "export", "skipped": True, "reason": "no fitted people"}
     inputs = [p for p in (ws.capture_toml, ws.calibration, *ws.person_files()) if p.is_file()]
     manifest = StageManifest(ws.cache_dir, "export", ws.root)
     key = {"formats": formats}
