@@ -88,6 +88,7 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
     - ``tracked``: share that some track is on, whatever its person (what the tracker found);
     - ``wrong``: whose track has another person (or a person that is nobody);
     - ``switches``: per camera and gt person, changes of the person id along the frames it has one;
+      ``switch_events``: each one's camera, gt person, frame, person ids and the tracks before and after;
     - ``false_tracks``: tracks given a person that are on no gt person in most of those frames (an
       object, or a second track on someone's body);
     - ``tracks_on_nothing``: the tracker's tracks on no gt person in most of their frames;
@@ -146,7 +147,7 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
     to_gt = {pids[i]: gts[j] for i, j in zip(r, ci) if M[i, j] > 0}
     n_seen = n_ok = n_wrong = switches = 0
     per_person = {g: [0, 0] for g in gts}
-    false_tracks, on_nothing = [], []
+    false_tracks, on_nothing, switch_events = [], [], []
     for c, (e, pid_tk, present_tk, seen_tp, on_tk, tids) in per_cam.items():
         cov = cover[c]
         for j, g in enumerate(e.gt_ids):
@@ -158,8 +159,16 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
             n_wrong += int(np.count_nonzero((mapped != g) & (cov[s, j] >= 0)))
             per_person[int(g)][0] += ok
             per_person[int(g)][1] += int(s.sum())
-            seq = cov[:, j][cov[:, j] >= 0]
-            switches += int(np.count_nonzero(seq[1:] != seq[:-1]))
+            at = np.nonzero(cov[:, j] >= 0)[0]
+            seq = cov[at, j]
+            sw = np.nonzero(seq[1:] != seq[:-1])[0]
+            switches += len(sw)
+            for i in sw:  # which track carried the person before and after: a changed track is the
+                # tracker's (or the fill's) doing, the same track the match's
+                t0, t1 = at[i], at[i + 1]
+                k0, k1 = (int(np.nonzero(on_tk[t] == j)[0][0]) for t in (t0, t1))
+                switch_events.append({"camera": c, "gt": int(g), "frame": int(t1), "from": int(seq[i]),
+                                      "to": int(seq[i + 1]), "tracks": [int(tids[k0]), int(tids[k1])]})
         for k in range(on_tk.shape[1]):
             # given: the frames the track has a person in (a whole-track assignment names every frame)
             pres = present_tk[:, k]
@@ -171,7 +180,7 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
     return {"matched": round(n_ok / n_seen, 4) if n_seen else None,
             "tracked": round(n_tracked / n_seen, 4) if n_seen else None,
             "wrong": round(n_wrong / n_seen, 4) if n_seen else None,
-            "person_view_frames": n_seen, "switches": switches,
+            "person_view_frames": n_seen, "switches": switches, "switch_events": switch_events,
             "false_tracks": false_tracks, "tracks_on_nothing": on_nothing,
             "missed_persons": [g for g in gts if g not in to_gt.values()],
             "extra_persons": [p for p in pids if p not in to_gt],
