@@ -1,5 +1,6 @@
-"""The fit's physical self-checks (mamma_kit/fitting/checks.py) on fitted workspaces, without
-fitting again: the bodies from smplx/, who was seen where from the fit's inputs.
+"""The fit's physical self-checks (mamma_kit/fitting/checks.py, and each view against the bodies:
+fitting/viewcheck.py) on fitted workspaces, without fitting again: the bodies from smplx/, who was
+seen where and each view's landmarks from the fit's inputs.
 
     python benchmarks/fit_checks.py demo-out /tmp/speed/ws /tmp/meeting/ws
 """
@@ -17,7 +18,9 @@ def checks_of(root: Path) -> dict:
     from mamma_kit.core.smplxfile import read_smplx_result
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.fitting.data import open_fit_data
+    from mamma_kit.body import skeleton as sk
     from mamma_kit.fitting.stage import physical_checks
+    from mamma_kit.fitting.viewcheck import gather, view_findings
 
     ws = Workspace(root)
     res = {int(p.stem.split("_")[1]): read_smplx_result(p) for p in ws.person_files()}
@@ -26,8 +29,24 @@ def checks_of(root: Path) -> dict:
     pids = [p for p in data.person_ids if p in res]
     seen = data.present[:, [data.person_ids.index(p) for p in pids]]
     observed = seen.sum(0) >= min(2, len(data.cameras))  # the fit's observed frames
+    T = len(data.frame_times)
+    pose = np.stack([np.concatenate([np.asarray(getattr(res[p], k)).reshape(T, -1) for k in sk.POSE_PARAMS], -1)
+                     .reshape(T, -1, 3) for p in pids])
+    transl = np.stack([res[p].transl for p in pids])
+    betas = np.stack([res[p].betas for p in pids])
+    cols = [data.person_ids.index(p) for p in pids]
+    def blocks():
+        from types import SimpleNamespace
+
+        for a in range(0, T, 200):
+            s = slice(a, min(a + 200, T))
+            d = data.slice_frames(s)
+            yield s, SimpleNamespace(xy=d.xy[:, cols], vis=d.vis[:, cols], present=d.present[:, cols])
+
+
+    views = view_findings(data.rig, *gather(model, blocks(), pose, transl, betas), data.fps, pids)
     return physical_checks(ws, model, data.rig, data.frame_times, np.stack([res[p].joints for p in pids]), observed,
-                           seen, np.stack([res[p].betas for p in pids]), pids)
+                           seen, betas, pids, views)
 
 
 def main() -> None:

@@ -132,3 +132,71 @@ def test_runs_and_summary_lines():
     c = {"flags": [{"person": 2, "check": "too_fast", "severity": "impossible", "frames": [3, 3], "times_s": [1.0, 1.0],
                     "what": "pelvis at 40.0 m/s", "cause": "a track switches person"}]}
     assert summary_lines(c) == ["person 2, frames 3-3 (1.00-1.00 s): too fast: pelvis at 40.0 m/s: a track switches person"]
+
+
+# ---- each view against the fitted bodies (fitting/viewcheck.py) -----------------------------------
+
+def _views_take(rig, P: int = 2, T_: int = 40, fps: float = 20.0, seed: int = 1):
+    """Bodies of 48 points walking a curve at about 1.3 m/s, and every camera's view of them (0.5 px noise)."""
+    rng = np.random.default_rng(seed)
+    shape = np.c_[rng.normal(0, 0.15, (48, 2)), rng.uniform(0.0, 1.75, 48)]
+    t = np.arange(T_) / fps
+    world = np.zeros((P, T_, 48, 3))
+    for p in range(P):
+        path = np.c_[np.cos(1.0 * t + p * 2.5), np.sin(1.0 * t + p * 2.5), np.zeros(T_)] * 1.3
+        world[p] = path[:, None] + shape[None] + rng.normal(0, 0.02, (1, 48, 3)) * p
+    obs = np.stack([_view(rig[n], world, rng) for n in rig.names])
+    return world, obs, fps
+
+
+def _view(cam, world, rng):
+    uv = cam.project(world.reshape(-1, 3)).reshape(*world.shape[:-1], 2)
+    return uv + rng.normal(0, 0.5, uv.shape)
+
+
+def _findings(rig, world, obs, fps):
+    from mamma_kit.fitting.viewcheck import view_findings
+
+    return view_findings(rig, world, obs, fps, [0, 4])
+
+
+def test_views_that_agree_with_the_bodies_give_no_finding(rig):
+    assert _findings(rig, *_views_take(rig)) == []
+
+
+def test_a_view_with_two_persons_swapped_is_named_with_the_swap(rig):
+    world, obs, fps = _views_take(rig)
+    obs[3, :, 10:30] = obs[3, ::-1, 10:30]  # cam3's tracks of the two persons exchanged in frames 10-29
+    got = _findings(rig, world, obs, fps)
+    assert {(f.check, f.person) for f in got} == {("view_swapped", 0), ("view_swapped", 1)}
+    for f in got:
+        assert list(np.flatnonzero(f.frames_t)) == list(range(10, 30)) and "cam3" in f.cause and "swapped" in f.cause
+
+
+def test_a_view_with_its_clock_off_is_named_with_the_offset(rig):
+    world, obs, fps = _views_take(rig)
+    late = np.roll(world, -6, axis=1)  # cam3 shows at t what the bodies do 6 frames (0.3 s) later
+    obs[3] = _view(rig["cam3"], late, np.random.default_rng(5))
+    got = _findings(rig, world, obs, fps)
+    assert {f.check for f in got} == {"view_clock"}, [(f.check, f.what) for f in got]
+    assert all("cam3" in f.cause and "0.30 s" in f.cause for f in got)
+
+
+def test_a_view_whose_camera_moved_is_named_with_its_pose(rig):
+    world, obs, fps = _views_take(rig)
+    moved = rig["cam3"].copy()
+    moved.t = moved.t - moved.R @ np.array([0.5, 0.0, 0.0])  # its centre 0.5 m along x from the calibration's
+    obs[3] = _view(moved, world, np.random.default_rng(6))
+    got = _findings(rig, world, obs, fps)
+    assert {f.check for f in got} == {"view_pose"}, [(f.check, f.what) for f in got]
+    assert all("cam3" in f.cause and "calibration.toml" in f.cause for f in got)
+
+
+def test_view_findings_become_doubtful_flags(rig):
+    world, obs, fps = _views_take(rig)
+    obs[3, :, 10:30] = obs[3, ::-1, 10:30]
+    joints, observed, seen, times = _take(rig)
+    c = check_fit(joints, observed, seen, times, rig, True, np.array([1.7, 1.7]), [0, 4],
+                  views=_findings(rig, world, obs, fps))
+    assert c["passed"] and c["by_check"] == {"view_swapped": 40} and c["doubtful_frames"] == 40
+    assert {f["person"] for f in c["flags"]} == {0, 4} and all(f["frames"] == [10, 29] for f in c["flags"])

@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 IMPOSSIBLE = ("inside_camera", "behind_camera", "below_floor", "too_fast", "same_place")
-DOUBTFUL = ("floating", "height", "depth", "unseen")
+DOUBTFUL = ("floating", "height", "depth", "unseen", "view_swapped", "view_clock", "view_pose", "view_disagrees")
 MAX_RUNS = 12  # per person and check: the longest runs are listed, the rest counted
 
 
@@ -78,11 +78,12 @@ class _Flags:
 
 def check_fit(joints_ptj3: np.ndarray, observed_pt: np.ndarray, seen_cpt: np.ndarray, times_t: np.ndarray,
               rig, floor_known: bool, heights_p: np.ndarray, person_ids: list[int],
-              limits: Limits = Limits()) -> dict:
+              limits: Limits = Limits(), views=()) -> dict:
     """Every check on every fitted person and frame (see module doc).
 
     joints_ptj3: (P, T, 55, 3) world joints; observed_pt: (P, T) frames the person was fitted from
-    views; seen_cpt: (C, P, T) which camera saw whom (rig order); heights_p: (P,) rest-pose heights (m).
+    views; seen_cpt: (C, P, T) which camera saw whom (rig order); heights_p: (P,) rest-pose heights (m); views:
+    fitting.viewcheck's findings (each camera against the fitted bodies), added as flags.
     Returns {"passed", "impossible_frames", "doubtful_frames", "by_check", "flags": [...], "limits"}.
     """
     L = limits
@@ -134,8 +135,8 @@ def check_fit(joints_ptj3: np.ndarray, observed_pt: np.ndarray, seen_cpt: np.nda
             fast[idx[1:]] = v > L.max_speed_mps
             speed[idx[1:]] = v
             fl.add(p, "too_fast", fast, lambda a, b: f"pelvis at {speed[a:b + 1].max():.1f} m/s",
-                   "a track switches person between these frames (identities.json), or a camera's clock is off "
-                   "(timing.toml)")
+                   "a track switches person between these frames (identities.json), or a camera's clock (timing.toml) "
+                   "or pose (calibration.toml) is off: see the view checks")
         # two views only, nearly parallel rays
         n_seen = seen_cpt[:, p].sum(0)
         two = obs & (n_seen == 2)
@@ -174,6 +175,8 @@ def check_fit(joints_ptj3: np.ndarray, observed_pt: np.ndarray, seen_cpt: np.nda
             fl.add(p, "same_place", both & (d < L.same_place_m),
                    lambda a, b, d=d, q=q: f"pelvis {d[a:b + 1].min():.2f} m from person {person_ids[q]}'s",
                    "one person fitted twice: tracks of one person were matched into two persons")
+    for f in views:
+        fl.add(f.person, f.check, f.frames_t, lambda a, b, w=f.what: w, f.cause)
     impossible = sum(v for k, v in fl.counts.items() if k in IMPOSSIBLE)
     return {"passed": impossible == 0, "impossible_frames": int(impossible),
             "doubtful_frames": int(sum(v for k, v in fl.counts.items() if k in DOUBTFUL)),

@@ -16,6 +16,7 @@ import numpy as np
 
 from mamma_kit.fitting.checks import check_fit, rest_heights, summary_lines
 from mamma_kit.fitting.stages import FitConfig, Fitter, FitResult
+from mamma_kit.fitting.viewcheck import gather, view_findings
 
 REPORT_NAME = "fit_report.json"
 
@@ -34,12 +35,13 @@ def _summary(e_parts: list[np.ndarray], rel_parts: list[np.ndarray] | None, coun
     return {**out, count_key: int(len(e))}
 
 
-def _blocks(fitter, result: FitResult):
-    """(output frame slice, that block's data as fitted) over the take, REPORT_BLOCK frames at a time."""
+def _blocks(fitter, result: FitResult, raw: bool = False):
+    """(output frame slice, that block's data as fitted) over the take, REPORT_BLOCK frames at a time;
+    ``raw``: as read, with the views the fit set aside."""
     T = len(result.frame_times)
     for a in range(0, T, REPORT_BLOCK):
         s = slice(a, min(a + REPORT_BLOCK, T))
-        yield s, fitter.frames(s)
+        yield s, fitter.data.slice_frames(s) if raw else fitter.frames(s)
 
 
 def reprojection_report(model, fitter, result: FitResult, min_vis: float = 0.5) -> dict:
@@ -162,8 +164,10 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     for old in ws.person_files():  # a person from an earlier run that this run did not fit
         if old not in written:
             old.unlink()
+    views = view_findings(data.rig, *gather(model, _blocks(fitter, result, raw=True), result.pose, result.transl, result.betas),
+                          result.fps, list(result.person_ids))
     checks = physical_checks(ws, model, data.rig, result.frame_times, result.joints, result.observed, data.present,
-                             result.betas, result.person_ids)
+                             result.betas, result.person_ids, views)
     for line in summary_lines(checks):
         log.warn(f"fit check: {line}")
     report = {
@@ -199,16 +203,17 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     return report
 
 
-def physical_checks(ws, model, rig, times_t, joints_ptj3, observed_pt, seen_cpt, betas_pb, person_ids) -> dict:
+def physical_checks(ws, model, rig, times_t, joints_ptj3, observed_pt, seen_cpt, betas_pb, person_ids,
+                    views=()) -> dict:
     """fitting.checks on fitted bodies (arrays as check_fit takes them; the floor is known where
-    calibration found it)."""
+    calibration found it; ``views``: fitting.viewcheck's findings)."""
     from mamma_kit.core.calibfile import read_calibration
 
     floor = False
     if ws.calibration.is_file():
         floor = read_calibration(ws.calibration)[1]["rig"].get("world", {}).get("source") == "floor"
     return check_fit(joints_ptj3, observed_pt, seen_cpt, times_t, rig, floor, rest_heights(model, betas_pb),
-                     list(person_ids))
+                     list(person_ids), views=views)
 
 
 def report_path(ws) -> Path:
