@@ -110,7 +110,10 @@ def main() -> None:
         by = ", ".join(f"{k} {v}" for k, v in ch["by_check"].items()) or "-"
         print(f"| {case} | {what} | {'passed' if ch['passed'] else 'FAILED'} | {ch['impossible_frames']} | "
               f"{ch['doubtful_frames']} | {by} | {aside_s} | {rp} |", flush=True)
-        for f in ch["flags"][:4]:
+        firsts = {}
+        for f in ch["flags"]:  # the first flag of each check
+            firsts.setdefault(f["check"], f)
+        for f in firsts.values():
             print(f"    person {f['person']}, frames {f['frames'][0]}-{f['frames'][1]}: {f['check']}: {f['what']}: "
                   f"{f['cause']}", flush=True)
 
