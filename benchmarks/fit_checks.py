@@ -30,8 +30,7 @@ def checks_of(root: Path) -> dict:
     seen = data.present[:, [data.person_ids.index(p) for p in pids]]
     observed = seen.sum(0) >= min(2, len(data.cameras))  # the fit's observed frames
     T = len(data.frame_times)
-    pose = np.stack([np.concatenate([np.asarray(getattr(res[p], k)).reshape(T, -1) for k in sk.POSE_PARAMS], -1)
-                     .reshape(T, -1, 3) for p in pids])
+    pose = np.stack([sk.joint_axis_angles(res[p]) for p in pids])
     transl = np.stack([res[p].transl for p in pids])
     betas = np.stack([res[p].betas for p in pids])
     cols = [data.person_ids.index(p) for p in pids]

@@ -35,6 +35,16 @@ POSE_PARAMS: dict[str, int] = {
     "global_orient": 3, "body_pose": 63, "jaw_pose": 3, "leye_pose": 3, "reye_pose": 3,
     "left_hand_pose": 45, "right_hand_pose": 45,
 }
+
+
+def joint_axis_angles(result) -> np.ndarray:
+    """(T, 55, 3) float64 axis-angle of every joint in SMPL-X order, from an object with the pose
+    parameters as (T, n) attributes (a core.smplxfile.SmplxResult)."""
+    T = len(np.asarray(result.global_orient))
+    return np.concatenate([np.asarray(getattr(result, k), np.float64).reshape(T, n) for k, n in POSE_PARAMS.items()],
+                          1).reshape(T, -1, 3)
+
+
 #: Every parameter and its size (betas per person, the rest per frame).
 PARAM_SIZES: dict[str, int] = {"betas": NUM_BETAS, **POSE_PARAMS, "expression": NUM_EXPRESSION, "transl": 3}
 

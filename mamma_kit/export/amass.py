@@ -20,7 +20,7 @@ from mamma_kit.body import skeleton as sk
 
 def amass_arrays(result) -> dict[str, np.ndarray]:
     """The AMASS-style arrays of a core.smplxfile.SmplxResult."""
-    poses = np.concatenate([np.asarray(getattr(result, k), np.float64) for k in sk.POSE_PARAMS], 1)
+    poses = sk.joint_axis_angles(result).reshape(result.num_frames, -1)
     return {"poses": poses, "trans": np.asarray(result.transl, np.float64), "betas": np.asarray(result.betas, np.float64),
             "num_betas": np.array(len(result.betas)), "gender": np.array(result.gender),
             "mocap_framerate": np.array(float(result.fps)), "surface_model_type": np.array("smplx"),

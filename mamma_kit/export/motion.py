@@ -83,7 +83,7 @@ def rest_joints_tj3(model, result) -> np.ndarray:
 def skeleton_motion(model, result) -> SkeletonMotion:
     """The person of ``result`` (core.smplxfile.SmplxResult) on ``model``'s skeleton."""
     T = result.num_frames
-    aa_tj3 = np.concatenate([np.asarray(getattr(result, k), np.float64) for k in sk.POSE_PARAMS], 1).reshape(T, -1, 3)
+    aa_tj3 = sk.joint_axis_angles(result)
     rot = Rotation.from_rotvec(aa_tj3.reshape(-1, 3)).as_matrix().reshape(T, -1, 3, 3)
     J_tj3 = rest_joints_tj3(model, result)
     parents = np.asarray(model.np.parents, np.int64)
