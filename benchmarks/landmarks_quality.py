@@ -4,7 +4,8 @@ model and the single-query baseline, in the same run.
 
     nice -n 10 python benchmarks/landmarks_quality.py [--root /tmp/mk_lm_bench] [--threads 2]
         [--weights mamma_kit/landmarks/weights/embedded-kp.pt] [--image-only .../embedded.pt]
-        [--baseline .../embedded-single.pt] [--crops data/crops/val-kp]
+        [--baseline .../embedded-single.pt] [--crops data/crops/val-kp] [--models embedded-kp+hands]
+        [--figure docs/landmarks-rim-reliability.png]
 
 Held out: captures rendered by `mamma-kit synth` from recipes and seeds never used for the
 training crops (those came from `synth --crops` scenes; these are whole videos: H.264, the
@@ -109,7 +110,7 @@ def silhouette_split(ws: Path, band_frac: float = 0.005) -> dict:
     from mamma_kit.evaluation.landmarks import landmark_pairs
 
     w = Workspace(ws)
-    near_all, err_all = [], []
+    near_all, err_all, prob_all, true_all = [], [], [], []
     for f in sorted(w.landmarks_dir.glob("*.npz")):
         r = landmark_pairs(w, f.stem)
         if r is None:
@@ -132,10 +133,51 @@ def silhouette_split(ws: Path, band_frac: float = 0.005) -> dict:
             near[n] = edge[xy[:, 1], xy[:, 0]] <= max(1.0, band_frac * d["box_h"][n])
         near_all.append(near.ravel())
         err_all.append(((d["vis_p"] > 0.5) != (d["vis_g"] > 0.5)).ravel())
+        prob_all.append(np.asarray(d["vis_p"], float).ravel())
+        true_all.append((d["vis_g"] > 0.5).ravel())
     near, err = np.concatenate(near_all), np.concatenate(err_all)
+    prob, true = np.concatenate(prob_all), np.concatenate(true_all)
+    ece, rows = reliability(prob[near], true[near])
     return {"band_frac": band_frac, "share_of_landmarks": float(near.mean()),
             "share_of_errors": float((err & near).sum() / max(err.sum(), 1)),
-            "accuracy_at_rim": float(1 - err[near].mean()), "accuracy_elsewhere": float(1 - err[~near].mean())}
+            "accuracy_at_rim": float(1 - err[near].mean()), "accuracy_elsewhere": float(1 - err[~near].mean()),
+            "rim_calibration_error": ece, "rim_reliability": rows}
+
+
+def reliability(prob, true, bins: int = 10) -> tuple[float, list]:
+    """Expected calibration error of visibility probabilities against the true labels (equal-width
+    bins, weighted by their share), and per bin: (mean probability, observed visible share, count)."""
+    import numpy as np
+
+    idx = np.minimum((prob * bins).astype(int), bins - 1)
+    rows, ece = [], 0.0
+    for b in range(bins):
+        m = idx == b
+        if m.any():
+            p_b, y_b = float(prob[m].mean()), float(true[m].mean())
+            rows.append((p_b, y_b, int(m.sum())))
+            ece += m.mean() * abs(p_b - y_b)
+    return float(ece), rows
+
+
+def reliability_figure(path: Path, curves: dict) -> None:
+    """Reliability diagram of the rim's visibility (one curve per capture)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.5, 4.5), dpi=120)
+    ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="calibrated")
+    for name, (ece, rows) in curves.items():
+        ax.plot([r[0] for r in rows], [r[1] for r in rows], "o-", label=f"{name} (ECE {ece:.3f})")
+    ax.set_xlabel("predicted visibility (mean in bin)")
+    ax.set_ylabel("visible in truth (share)")
+    ax.set_title("Landmarks on the silhouette's rim")
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def crops_metrics(weights: Path, crops: Path, n: int, threads: int) -> dict:
@@ -170,10 +212,14 @@ def main() -> None:
     ap.add_argument("--crop-samples", type=int, default=1024)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--models", default=None, help="only these models (comma-separated names as printed)")
+    ap.add_argument("--figure", type=Path, default=None, help="write the rim's reliability diagram (PNG) here")
     a = ap.parse_args()
     # name: (weights, hand refinement); only the first refines hands (landmarks/hands.py)
     models = {"embedded-kp+hands": (a.weights, "auto"), "embedded-kp": (a.weights, "off"),
               "embedded": (a.image_only, "off"), "single-query": (a.baseline, "off")}
+    if a.models:
+        models = {k: v for k, v in models.items() if k in a.models.split(",")}
     for k, (p, _) in list(models.items()):
         if not p.is_file():
             print(f"{k}: {p} not found, skipped")
@@ -181,6 +227,7 @@ def main() -> None:
     print(f"command: {' '.join(sys.argv)}")
     print(f"load average before: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     results: dict = {}
+    curves: dict = {}
     for name in a.captures.split(","):
         ws = prepare(a.root, name)
         for mname, (w, hands) in models.items():
@@ -196,7 +243,11 @@ def main() -> None:
                       f"{100 * sp['band_frac']:.1f} % of the box height, >= 1 px, of its edge): "
                       f"{100 * sp['share_of_errors']:.0f} % of the errors on {100 * sp['share_of_landmarks']:.0f} % "
                       f"of the landmarks; accuracy there {100 * sp['accuracy_at_rim']:.1f} %, elsewhere "
-                      f"{100 * sp['accuracy_elsewhere']:.1f} %", flush=True)
+                      f"{100 * sp['accuracy_elsewhere']:.1f} %; on the rim, expected calibration error of the "
+                      f"visibility probability {sp['rim_calibration_error']:.3f}", flush=True)
+                print("        rim reliability (mean predicted, visible in truth, count): " + ", ".join(
+                    f"{p:.2f}/{y:.2f}/{n}" for p, y, n in sp["rim_reliability"]), flush=True)
+                curves[name] = (sp["rim_calibration_error"], sp["rim_reliability"])
     if a.crops is not None:
         for mname, (w, hands) in models.items():
             if hands != "off":  # crops are at the network's input size: nothing to refine from
@@ -205,6 +256,8 @@ def main() -> None:
             results.setdefault("crops", {})[mname] = m
             print(f"crops   {mname:13s} {fmt(m)}  [{m['instances']} held-out crops at the network's input size]",
                   flush=True)
+    if a.figure is not None and curves:
+        reliability_figure(a.figure, curves)
     print(f"load average after: {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
     if a.json:
         a.json.write_text(json.dumps(results, indent=2, default=str))
