@@ -182,3 +182,36 @@ def test_rows_of_an_npz_are_read_in_any_order(tmp_path):
                 assert np.array_equal(got[k], v[a:b]), (k, a, b)
     with pytest.raises(UserError, match="missing"):
         NpzRows(path, ("xy", "sigma"))
+
+
+def _forward_camera(name: str, centre) -> "Camera":
+    """A 640x480 camera at ``centre`` looking along world +y (x right, z up)."""
+    from mamma_kit.core.camera import Camera
+
+    R = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+    return Camera(name, (640, 480), K, np.zeros(5), "radtan", R, -R @ np.asarray(centre, float))
+
+
+def test_a_pairing_that_puts_the_person_behind_its_cameras_is_refused():
+    # two cameras side by side looking the same way; each sees one person, and the two people stand
+    # 3 m apart along the baseline: every landmark of one lies on the epipolar line of the other's,
+    # so the pair is epipolar-consistent, but its rays meet 8 m behind both cameras
+    from mamma_kit.core.camera import Rig
+
+    rig = Rig([_forward_camera("cam0", [0, 0, 1.6]), _forward_camera("cam1", [2, 0, 1.6])])
+    rng = np.random.default_rng(3)
+    T = 30
+    times = np.arange(T) / FPS
+    body = np.c_[rng.normal(0, 0.15, 40), np.full(40, 4.0), rng.uniform(0.0, 1.7, 40)]
+    near = np.broadcast_to(body, (T, 1, 40, 3))
+    far = near + np.array([3.0, 0, 0])
+    views = [ViewTracks.from_landmarks(landmark_view(rig["cam0"], near, times), rig["cam0"], times),
+             ViewTracks.from_landmarks(landmark_view(rig["cam1"], far, times), rig["cam1"], times)]
+    ident = match_take(views, None, MatchSettings(), WindowSettings())
+    assert ident.diagnostics["persons"] == 0
+    assert ident.diagnostics["refused"] and all("behind" in r["reason"] for r in ident.diagnostics["refused"])
+    # the same cameras seeing one person both: kept
+    views = [ViewTracks.from_landmarks(landmark_view(c, near, times), c, times) for c in rig]
+    ident = match_take(views, None, MatchSettings(), WindowSettings())
+    assert ident.diagnostics["persons"] == 1 and ident.diagnostics["refused"] == []

@@ -164,8 +164,8 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
     for old in ws.person_files():  # a person from an earlier run that this run did not fit
         if old not in written:
             old.unlink()
-    views = view_findings(data.rig, *gather(model, _blocks(fitter, result, raw=True), result.pose, result.transl, result.betas),
-                          result.fps, list(result.person_ids))
+    world, obs = gather(model, _blocks(fitter, result, raw=True), result.pose, result.transl, result.betas)
+    views = view_findings(data.rig, world, obs, result.fps, list(result.person_ids))
     checks = physical_checks(ws, model, data.rig, result.frame_times, result.joints, result.observed, data.present,
                              result.betas, result.person_ids, views)
     for line in summary_lines(checks):

@@ -37,9 +37,9 @@ SWAP_RUN = 3  # frames: a shorter run of a better-fitting other person is noise
 MAX_SHIFT_S = 0.5  # the clock offsets tried, both ways
 MIN_MOVE = (0.1, 1.0)  # m, deg: a solved pose nearer than both to the calibrated one is the same pose
 PNP_INLIER_PX = 8.0  # RANSAC's inlier distance for the pose solved from the bodies
-DISAGREE = (2.5, 3.0)
+DISAGREE = (2.5, 3.0)  # a view is off when its median error exceeds both x the others' and + px
 ODD_SHARE = 0.8  # the odd camera: without it the others agree to this share of the typical leave-one-out
-SAMPLE_BLOCKS, SAMPLE_LENGTH = 8, 40  # frames for the camera-wide tests on a long take  # a view is off when its median error exceeds both x the others' and + px
+SAMPLE_BLOCKS, SAMPLE_LENGTH = 8, 40  # frames for the camera-wide tests on a long take
 
 
 @dataclass
@@ -199,8 +199,8 @@ def view_findings(rig, world_ptS3: np.ndarray, obs_cptS2: np.ndarray, fps: float
                       f"{n}'s tracks, clock or calibration are off (neither a swap, a clock offset nor a moved "
                       f"camera explains it)")]
         for check, what, cause in found:
-            out += [ViewFinding(p, check, _span(rest[p]), what.replace("CAM", n), cause.replace("CAM", n)) for p in range(P)
-                    if rest[p].any()]
+            out += [ViewFinding(p, check, _span(rest[p]), what.replace("CAM", n), cause.replace("CAM", n))
+                    for p in range(P) if rest[p].any()]
     return out
 
 
@@ -222,7 +222,8 @@ def swap_findings(cam, world_ptS3, obs_ptS2, e_pt, judged_pt, ref: float, person
                 swapped[p] |= m
                 out.append(ViewFinding(p, "view_swapped", m,
                                        f"{cam.name}'s landmarks of this person fit person {person_ids[q]}'s body "
-                                       f"({_median(eq[m]):.0f} px) better than their own ({_median(e_pt[p][m]):.0f} px)",
+                                       f"({_median(eq[m]):.0f} px) better than their own "
+                                       f"({_median(e_pt[p][m]):.0f} px)",
                                        f"{cam.name}'s tracks of persons {person_ids[p]} and {person_ids[q]} are "
                                        f"swapped here (identities.json: a wrong match)"))
     return swapped, out

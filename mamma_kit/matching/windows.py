@@ -30,6 +30,7 @@ from scipy.optimize import linear_sum_assignment
 
 from mamma_kit.core.identities import Identities
 from mamma_kit.core.tracks import nearest_frames
+from mamma_kit.fitting.checks import Limits
 from mamma_kit.matching.pairs import ViewTracks
 from mamma_kit.matching.sources import ViewSource, take
 
@@ -246,7 +247,7 @@ class TrackGeometry:
         for w in sorted(ch.windows):
             members = list(ch.windows[w])
             if len({c for c, _ in members}) >= 2:
-                for t, X in self._triangulated(members):
+                for t, X in self.triangulated(members):
                     t_n.append(t)
                     X_n3.append(X)
         t, X = np.concatenate(t_n), np.concatenate(X_n3)
@@ -274,7 +275,7 @@ class TrackGeometry:
             return None
         return (t[0], np.median(X[:n], 0)), (t[-1], np.median(X[-n:], 0))
 
-    def _triangulated(self, members) -> list[tuple[np.ndarray, np.ndarray]]:
+    def triangulated(self, members) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per track of the members' main view (the one with most frames), times (n,) and points
         (n, 3) at its frames where two or more views' tracks are seen: the point nearest to their
         centroids' rays (arrays, not a tuple per frame: a take of minutes has millions)."""
@@ -327,6 +328,43 @@ def _closest_points(rays) -> tuple[np.ndarray, np.ndarray]:
     if two.any():
         X[two] = np.linalg.solve(A[two], b[two][..., None])[..., 0]
     return X, n
+
+
+def refuse_impossible(chains: list[Chain], geo: TrackGeometry, limits: Limits = Limits()) -> tuple[list[Chain], list]:
+    """The fit's physical checks (fitting.checks.Limits) on the match: where a window person's
+    triangulated place lies behind (or at) a camera it takes a track from, or inside it, that
+    camera's tracks leave the person in that window. A wrong pairing satisfies the epipolar
+    constraint and triangulates somewhere, here where no body can be; the fit would follow it.
+    Returns the chains left and what was refused, with the reason."""
+    refused = []
+    for ch in chains:
+        for w in sorted(ch.windows):
+            members = ch.windows[w]
+            cams = sorted({c for c, _ in members})
+            if len(cams) < 2:
+                continue
+            pts = [X for _, X in geo.triangulated(list(members))]
+            X = np.concatenate(pts) if pts else np.zeros((0, 3))
+            X = X[np.isfinite(X).all(1)]
+            if len(X) < MIN_RUN:
+                continue
+            for c in cams:
+                cam = geo.views[c].camera
+                depth = cam.to_camera(X)[:, 2]
+                near = np.linalg.norm(X - cam.center, axis=1)
+                if np.mean(depth < limits.min_depth_m) > 0.5:
+                    why = (f"the person they were matched into lies behind {c} (median {np.median(depth):+.2f} m "
+                           f"along its view)")
+                elif np.mean(near < limits.near_camera_m) > 0.5:
+                    why = f"the person they were matched into lies inside {c} ({np.median(near):.2f} m from its centre)"
+                else:
+                    continue
+                gone = sorted(t for cc, t in members if cc == c)
+                ch.windows[w] = {k: n for k, n in ch.windows[w].items() if k[0] != c}
+                refused.append({"window": int(w), "camera": c, "tracks": gone, "reason": why})
+        ch.windows = {w: m for w, m in ch.windows.items() if m}
+        ch.multiview_frames = sum(multiview_frames(m) for m in ch.windows.values())
+    return [ch for ch in chains if ch.windows], refused
 
 
 def select_chains(chains: list[Chain], period: float, s: WindowSettings, n_frames: int,
@@ -587,6 +625,7 @@ def match_take(views: list[ViewTracks | ViewSource], kp_views: list[ViewTracks |
     geo = TrackGeometry(views, edges)
     chains = chain_windows(per_window, w_s.max_gap_windows, geo.coexist)
     chains = link_chains(trim_weak_ends(chains), geo.ends, geo.coexist, w_s)
+    chains, refused = refuse_impossible(chains, geo)
     period = float(np.median([v.period for v in views]))
     kept, dropped = select_chains(chains, period, w_s, max(len(v.times_ref) for v in views), geo.same_place)
     person = person_arrays(kept, views, edges)
@@ -599,7 +638,7 @@ def match_take(views: list[ViewTracks | ViewSource], kp_views: list[ViewTracks |
     assigned = {(c, t) for c, m in assignments.items() for t in m}
     unassigned = [{"camera": v.name, "track": int(t), "reason": "no frame with landmarks"}
                   for v in views for k, t in enumerate(v.track_ids) if not v.valid_tk[:, k].any()]
-    reasons = {}
+    reasons = {(r["camera"], t): r["reason"] for r in refused for t in r["tracks"]}
     for d in dropped:
         for key in d["tracks"]:
             c, t = key.rsplit(":", 1)
@@ -610,7 +649,7 @@ def match_take(views: list[ViewTracks | ViewSource], kp_views: list[ViewTracks |
         "persons": len(kept), "windows": n_win, "window_s": w_s.window_s, "people": w_s.people,
         "view_counts": {str(p): len(ch.views()) for p, ch in enumerate(kept)},
         "multiview_frames": {str(p): ch.multiview_frames for p, ch in enumerate(kept)},
-        "chains": len(chains), "set_aside": dropped,
+        "chains": len(chains), "set_aside": dropped, "refused": refused,
         "segmented_tracks": sum(len({t for t, *_ in v}) for v in segments.values()),
     }
     settings_d = {**asdict(s), **{k: v for k, v in asdict(w_s).items()}}
