@@ -15,7 +15,10 @@ can make are tried on it, each a change of one file:
 - ``view_disagrees``: it lands far from the bodies and none of the three explains it.
 
 Only cameras that share their people with two or more other views are judged (with two views the
-bodies are as much this view's work as the other's). Arrays: C cameras (rig order), P persons, T
+bodies are as much this view's work as the other's). A clock or a pose is tried on the odd camera
+out only: the one without which the other views agree best (each left out in turn, the bodies
+moved per person and frame to fit the rest), on a sample of blocks of frames; a fault the fit
+absorbed (the bodies bent towards the faulty view) may leave no camera odd. Arrays: C cameras (rig order), P persons, T
 frames, S landmarks (an evenly spread subset of the fit's).
 """
 
