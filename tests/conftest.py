@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings as hypothesis_settings
 
 from mamma_kit.core.camera import Camera, Rig, rodrigues
 from mamma_kit.core.reproducible import configure
@@ -13,6 +14,11 @@ from mamma_kit.core.tracks import LandmarkTracks
 # the tests compute as the CLI does: deterministic kernels, one BLAS thread (an operation with
 # no deterministic form fails here first)
 configure()
+
+# property tests draw the same examples on every run: a red run then says the code changed, not
+# that a new draw was unlucky (GCC-PHAT once drew delay -7.0 with noise seed 158: 0.27 samples off)
+hypothesis_settings.register_profile("repeatable", derandomize=True)
+hypothesis_settings.load_profile("repeatable")
 
 
 class CliResult:
