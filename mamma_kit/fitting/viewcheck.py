@@ -18,8 +18,8 @@ Only cameras that share their people with two or more other views are judged (wi
 bodies are as much this view's work as the other's). A clock or a pose is tried on the odd camera
 out only: the one without which the other views agree best (each left out in turn, the bodies
 moved per person and frame to fit the rest), on a sample of blocks of frames; a fault the fit
-absorbed (the bodies bent towards the faulty view) may leave no camera odd. Arrays: C cameras (rig order), P persons, T
-frames, S landmarks (an evenly spread subset of the fit's).
+absorbed (the bodies bent towards the faulty view) may leave no camera odd. Arrays: C cameras (rig
+order), P persons, T frames, S landmarks (an evenly spread subset of the fit's).
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mamma_kit.core.camera import rotvec
 from mamma_kit.fitting.checks import runs
 
 SUBSET = 32  # landmarks per body used here: enough for a median, small for a take of minutes
@@ -101,38 +102,31 @@ def frame_errors(camera, world_ptS3: np.ndarray, obs_ptS2: np.ndarray) -> np.nda
 
 
 def bodies_without(rig, world_ptS3: np.ndarray, obs_cptS2: np.ndarray, c: int, huber_px: float = 5.0,
-                   iters: int = 3, eps: float = 1e-3) -> np.ndarray:
+                   iters: int = 3) -> np.ndarray:
     """The bodies (P, T, S, 3) each moved by the translation (per person and frame) that best fits
-    every view but camera ``c`` (Gauss-Newton with Huber weights on their landmarks); unmoved where
-    fewer than two of those views see the person."""
-    P, T, S = world_ptS3.shape[:3]
-    delta = np.zeros((P, T, 3))
-    views = [o for o in range(len(rig.names)) if o != c]
-    n_views = np.zeros((P, T), np.int64)
-    for o in views:
-        n_views += np.isfinite(obs_cptS2[o]).all(-1).sum(-1) >= MIN_POINTS
+    every view but camera ``c`` (Gauss-Newton with Huber weights on their landmarks, the fit's own
+    projection Jacobians); unmoved where fewer than two of those views see the person."""
+    import torch
+
+    from mamma_kit.fitting.projection import RigTensors
+
+    cams = RigTensors.from_rig(rig)
+    others = np.arange(len(rig.names)) != c
+    obs = obs_cptS2[others]  # (C-1, P, T, S, 2)
+    seen = np.isfinite(obs).all(-1)
+    use = (seen.sum(-1) >= MIN_POINTS).sum(0) >= 2  # (P, T)
+    delta = np.zeros(world_ptS3.shape[:2] + (3,))
     for _ in range(iters):
-        A = np.zeros((P, T, 3, 3))
-        b = np.zeros((P, T, 3))
-        X = world_ptS3 + delta[:, :, None]
-        for o in views:
-            cam = rig[rig.names[o]]
-            proj = lambda Y: cam.project(Y.reshape(-1, 3)).reshape(P, T, S, 2)  # noqa: E731
-            uv = proj(X)
-            J = np.stack([(proj(X + eps * np.eye(3)[a]) - uv) / eps for a in range(3)], -1)  # (P, T, S, 2, 3)
-            r = obs_cptS2[o] - uv
-            ok = np.isfinite(r).all(-1) & np.isfinite(J).all((-1, -2))
-            rn = np.linalg.norm(np.where(ok[..., None], r, 0.0), axis=-1)
-            w = np.where(ok, np.minimum(1.0, huber_px / np.maximum(rn, 1e-9)), 0.0)
-            Jz = np.where(ok[..., None, None], J, 0.0)
-            rz = np.where(ok[..., None], r, 0.0)
-            A += np.einsum("ptsia,ptsib,pts->ptab", Jz, Jz, w)
-            b += np.einsum("ptsia,ptsi,pts->pta", Jz, rz, w)
-        use = n_views >= 2
-        step = np.zeros_like(delta)
-        A_reg = A + 1e-6 * np.eye(3) * (np.trace(A, axis1=-2, axis2=-1)[..., None, None] + 1e-9)
-        step[use] = np.linalg.solve(A_reg[use], b[use][..., None])[..., 0]
-        delta += step
+        X = torch.as_tensor(world_ptS3 + delta[:, :, None], dtype=torch.float64)[None]
+        uv, J, valid = (a.numpy()[others] for a in cams.project_jacobian(X))
+        r = obs - uv
+        ok = seen & valid
+        rz = np.where(ok[..., None], r, 0.0)
+        w = np.where(ok, np.minimum(1.0, huber_px / np.maximum(np.linalg.norm(rz, axis=-1), 1e-9)), 0.0)
+        A = np.einsum("cptsia,cptsib,cpts->ptab", J, J, w)
+        b = np.einsum("cptsia,cptsi,cpts->pta", J, rz, w)
+        A += 1e-6 * np.eye(3) * (np.trace(A, axis1=-2, axis2=-1)[..., None, None] + 1e-9)
+        delta[use] += np.linalg.solve(A[use], b[use][..., None])[..., 0]
     return world_ptS3 + delta[:, :, None]
 
 
@@ -290,9 +284,8 @@ def clock_or_pose(cam, world_ptS3, obs_ptS2, rest_pt, sel_t, fps: float, max_poi
         solved = solve_pose(cam, world_ptS3[idx], obs_ptS2[idx])
         if solved is not None:
             e_pose = _median(np.where(rest_pt, frame_errors(solved, world_ptS3, obs_ptS2), np.nan))
-            dR = solved.R @ cam.R.T
             moved = (float(np.linalg.norm(solved.center - cam.center)),
-                     float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))))
+                     float(np.degrees(np.linalg.norm(rotvec(solved.R @ cam.R.T)))))
     pose_ok = e_pose < GAIN * base and (moved[0] >= MIN_MOVE[0] or moved[1] >= MIN_MOVE[1])
     if best_k != 0 and (not pose_ok or best_e <= e_pose):
         dt = best_k / fps
