@@ -42,7 +42,6 @@ def checks_of(root: Path) -> dict:
             d = data.slice_frames(s)
             yield s, SimpleNamespace(xy=d.xy[:, cols], vis=d.vis[:, cols], present=d.present[:, cols])
 
-
     views = view_findings(data.rig, *gather(model, blocks(), pose, transl, betas), data.fps, pids)
     return physical_checks(ws, model, data.rig, data.frame_times, np.stack([res[p].joints for p in pids]), observed,
                            seen, betas, pids, views)
