@@ -165,6 +165,10 @@ def test_identities_are_scored_per_frame(room_ws):
     swapped = Identities(cams, truth.assignments, segments={c: [(tid, -1e9, mid, tid), (tid, mid + 1e-6, 1e9, other)]})
     r2 = frame_scores(ws, swapped, clocks)
     assert r2["switches"] == 1 and 0 < r2["wrong"] < 0.5 and r2["matched"] == pytest.approx(1 - r2["wrong"])
+    # the switch is the match's (the same track before and after), in that camera, to the other person
+    (ev,) = r2["switch_events"]
+    assert ev["camera"] == c and ev["tracks"] == [tid, tid] and (ev["from"], ev["to"]) == (tid, other)
+    assert r["switch_events"] == []
     assert r2["matched_per_person"][str(tid)] < 1.0
 
 
