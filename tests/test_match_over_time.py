@@ -11,7 +11,7 @@ from conftest import landmark_view, make_ring_rig, walking_people
 from mamma_kit.core.identities import Identities, read_identities, write_identities
 from mamma_kit.matching.match import MatchSettings
 from mamma_kit.matching.pairs import ViewTracks
-from mamma_kit.matching.windows import WindowSettings, match_take
+from mamma_kit.matching.windows import WindowSettings, chain_windows, match_take
 
 FPS = 10.0
 
@@ -215,3 +215,14 @@ def test_a_pairing_that_puts_the_person_behind_its_cameras_is_refused():
     views = [ViewTracks.from_landmarks(landmark_view(c, near, times), c, times) for c in rig]
     ident = match_take(views, None, MatchSettings(), WindowSettings())
     assert ident.diagnostics["persons"] == 1 and ident.diagnostics["refused"] == []
+
+
+def test_a_window_person_who_lost_the_assignment_does_not_join_a_chain_in_a_view_it_already_holds():
+    # window 0: A and B; window 1: X continues A by cam0's track 1, Y shares only a few frames of
+    # cam1's track 1 with A (that track jumped to Y's person) and holds cam0's track 4
+    A, B = {("cam0", 1): 20, ("cam1", 1): 20}, {("cam0", 2): 20, ("cam1", 2): 20}
+    X, Y = {("cam0", 1): 20, ("cam1", 3): 20}, {("cam1", 1): 5, ("cam0", 4): 20}
+    chains = chain_windows([[A, B], [X, Y]], max_gap=2)
+    a = next(ch for ch in chains if ("cam0", 1) in ch.windows[0])
+    assert a.windows[1] == X  # Y would give the person two cam0 tracks at once
+    assert any(ch.windows == {1: Y} for ch in chains)

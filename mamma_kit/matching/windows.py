@@ -125,18 +125,8 @@ def chain_windows(per_window: list[list[dict]], max_gap: int, coexist=lambda *a:
         if score.size:
             r, c = linear_sum_assignment(-score)
             taken = {int(b): live[int(a)] for a, b in zip(r, c) if score[a, b] > 0}
-        for b, m in enumerate(persons):
-            if b in taken:
-                continue
-            # a window person that shares tracks with one chain only and clashes with none of its views
-            sharing = [live[a] for a in range(len(live)) if score[a, b] > 0]
-            if len(sharing) == 1:
-                ch = chains[sharing[0]]
-                now = ch.windows.get(w, {})
-                if not ({c for c, _ in now} & {c for c, _ in m}):
-                    ch.windows[w] = {**now, **m}
-                    continue
-            chains.append(Chain({w: dict(m)}))
+        # the assigned window persons first: a person who lost the assignment joins a chain below
+        # only where the chain's own window person leaves its views free
         for b, i in taken.items():
             now = chains[i].windows.get(w, {})
             chains[i].windows[w] = {**now, **persons[b]}
@@ -149,6 +139,18 @@ def chain_windows(per_window: list[list[dict]], max_gap: int, coexist=lambda *a:
                     for wj, m in chains[j].windows.items():
                         chains[i].windows[wj] = {**chains[i].windows.get(wj, {}), **m}
                     chains[j].windows = {}
+        for b, m in enumerate(persons):
+            if b in taken:
+                continue
+            # a window person that shares tracks with one chain only and clashes with none of its views
+            sharing = [live[a] for a in range(len(live)) if score[a, b] > 0 and chains[live[a]].windows]
+            if len(sharing) == 1:
+                ch = chains[sharing[0]]
+                now = ch.windows.get(w, {})
+                if not ({c for c, _ in now} & {c for c, _ in m}):
+                    ch.windows[w] = {**now, **m}
+                    continue
+            chains.append(Chain({w: dict(m)}))
         chains = [ch for ch in chains if ch.windows]
     for ch in chains:
         ch.multiview_frames = sum(multiview_frames(m) for m in ch.windows.values())
@@ -256,7 +258,9 @@ class TrackGeometry:
 
     def same_place(self, a: Chain, b: Chain, radius: float = 0.35, share: float = 0.5) -> bool:
         """Chain a is within ``radius`` of chain b at more than ``share`` of the instants both are
-        triangulated (and there are some): two people cannot stand in one place."""
+        triangulated and of a's own: two people cannot stand in one place, and a duplicate track
+        follows its person for most of its length (a few instants near b, where b's chain took a
+        track that jumped to a's person, make a no duplicate)."""
         ta, Xa = self.positions(a)
         tb, Xb = self.positions(b)
         if not len(ta) or not len(tb):
@@ -265,7 +269,8 @@ class TrackGeometry:
         both = j >= 0
         if both.sum() < 3:
             return False
-        return float(np.mean(np.linalg.norm(Xa[both] - Xb[j[both]], axis=1) < radius)) > share
+        close = np.linalg.norm(Xa[both] - Xb[j[both]], axis=1) < radius
+        return float(close.mean()) > share and float(close.sum()) > share * len(ta)
 
     def ends(self, ch: Chain, n: int = 5):
         """((t, X) of the chain's first multi-view frames, (t, X) of its last), X the median of
