@@ -31,12 +31,14 @@ MATCH_SHARE = 0.2
 # a skeleton is the same person as a track's last one when its points lie within this share of the
 # track's ROI side (60 fps or 30 fps motion between two frames stays well inside)
 TRACK_SHARE = 0.12
-# a followed person unseen this many frames is given up (half a second at 60 fps: long enough to
-# pass behind someone and keep the id)
-MAX_MISSED = 30
-# while hidden behind someone, a person keeps its visible sliver for this many frames if it holds
-# at least this share of its last full mask; such masks score COAST_SCORE
-MAX_COAST = 30
+# a followed person unseen this long is given up: long enough to pass behind someone and keep the id,
+# short enough that the track's stale ROI does not take whoever walks into it later (in seconds, not
+# frames: 30 frames were half a second at 60 fps but three at 10 fps, where a track lost in a
+# crossing came back on the other person)
+MAX_MISSED_S = 0.5
+# while hidden behind someone, a person keeps its visible sliver this long if it holds at least this
+# share of its last full mask; such masks score COAST_SCORE
+MAX_COAST_S = 0.5
 MIN_COAST_AREA = 0.03
 COAST_SCORE = 0.1
 # the finer tiles: this share of the frame's short side, if at least MIN_TILE_PX
@@ -105,8 +107,8 @@ def limb_distance(xy_a: np.ndarray, xy_b: np.ndarray) -> float:
     d = np.median(np.linalg.norm(xy_a[BODY] - xy_b[BODY], axis=1))
     d_sw = np.median(np.linalg.norm(xy_a[BODY] - xy_b[BODY_SWAPPED], axis=1))
     return float(min(d, d_sw))
-# fragments are joined across a gap of at most this many frames where the boxes meet
-JOIN_GAP = 15
+# fragments are joined across a gap of at most this long where the boxes meet
+JOIN_GAP_S = 0.25
 JOIN_SHARE = 0.5
 # tracks shorter than this are a glimpse or a false detection
 MIN_TRACK_S = 0.2
@@ -274,14 +276,14 @@ class PoseBackend:
         return out
 
     @staticmethod
-    def _coast(tracks, got, res, source, builder, prev, ti: int, W: int, H: int) -> None:
+    def _coast(tracks, got, res, source, builder, prev, ti: int, W: int, H: int, max_coast: int) -> None:
         """A followed person hidden behind another (its ROI's skeleton is the other's) keeps the
         pixels of its ROI's segmentation that are near its last skeleton and no one else's: the
         visible sliver, so its track does not break while it passes behind someone."""
         taken = [prev[tr.tid] for i, tr in enumerate(tracks) if i in got and tr.tid in prev]
         others = np.logical_or.reduce(taken) if taken else np.zeros((H, W), bool)
         for i, tr in enumerate(tracks):
-            if i in got or tr.xy is None or tr.merged or not 0 < tr.missed <= MAX_COAST:
+            if i in got or tr.xy is None or tr.merged or not 0 < tr.missed <= max_coast:
                 continue
             n = int(np.flatnonzero(source == i)[0])
             prob, (x0, y0) = res.segmentation_of(n, (W, H))
@@ -309,6 +311,7 @@ class PoseBackend:
         builder = _ScaledBuilder(MaskTrackBuilder(cam.name, rd.size, times), (W, H))
         tracks: list[_Track] = []
         next_id = 0
+        max_missed, max_coast = frames_in(MAX_MISSED_S, times), frames_in(MAX_COAST_S, times)
         prev: dict[int, np.ndarray] = {}  # track id -> its mask in the previous frame
         for t, img in log.track(rd.frames(max_side=WORK_SIDE), f"track {cam.name} (pose)", total=len(times)):
             ti = int(np.argmin(np.abs(times - t)))
@@ -370,9 +373,9 @@ class PoseBackend:
                     n = np.flatnonzero(source == i)
                     tr.merged = tr.merged or tr.tid in drop or (len(n) > 0 and any(
                         torso_overlap(res.xy[n[0]], res.xy[m]) < TORSO_SAME for m in got.values()))
-                    if tr.missed < MAX_MISSED:
+                    if tr.missed < max_missed:
                         alive.append(tr)
-            self._coast(tracks, got, res, source, builder, prev, ti, W, H)
+            self._coast(tracks, got, res, source, builder, prev, ti, W, H, max_coast)
             tracks = alive
         mt = builder.inner.build()
         summ = track_summary(mt)
@@ -422,6 +425,12 @@ def same_bodies(own: list) -> list[tuple[int, int]]:
 
 
 # ---- after the video: join fragments, keep the capture's people --------------------------------------
+def frames_in(seconds: float, times: np.ndarray) -> int:
+    """How many frames of a video with these timestamps last ``seconds`` (at least 1)."""
+    period = float(np.median(np.diff(times))) if len(times) > 1 else 1 / 30
+    return max(1, int(round(seconds / max(period, 1e-6))))
+
+
 def _centre_height(box_4: np.ndarray) -> tuple[np.ndarray, float]:
     return (box_4[:2] + box_4[2:]) / 2, float(box_4[3] - box_4[1])
 
@@ -429,6 +438,7 @@ def _centre_height(box_4: np.ndarray) -> tuple[np.ndarray, float]:
 def join_fragments(mt: MaskTracks) -> list[list[int]]:
     """Groups of columns that are one person seen in pieces (no overlap in time, meeting boxes)."""
     pres = mt.present
+    join_gap = frames_in(JOIN_GAP_S, mt.frame_times)
     spans = [(int(np.flatnonzero(pres[:, k])[0]), int(np.flatnonzero(pres[:, k])[-1])) if pres[:, k].any()
              else (0, -1) for k in range(pres.shape[1])]
     groups = [[k] for k in range(pres.shape[1]) if spans[k][1] >= 0]
@@ -445,7 +455,7 @@ def join_fragments(mt: MaskTracks) -> list[list[int]]:
                 start = min(spans[k][0] for k in gb)
                 kb = min(gb, key=lambda k: spans[k][0])
                 gap = start - end
-                if not 0 < gap <= JOIN_GAP:
+                if not 0 < gap <= join_gap:
                     continue
                 if (pres[:, ga].any(1) & pres[:, gb].any(1)).any():
                     continue
