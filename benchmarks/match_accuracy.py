@@ -26,6 +26,9 @@ person that show nobody (false tracks), the tracker's tracks on nobody (furnitur
 extra persons.
 
     nice -n 10 python benchmarks/match_accuracy.py --root /work/bench/ident --chain
+
+``--from match`` runs the match and the fill again on the tracks, keypoints and landmarks an earlier
+run left in --root (what a change to the matching needs).
 """
 
 from __future__ import annotations
@@ -119,6 +122,7 @@ def run_case(ws_path: Path, cams: list[str], seed: int, builtin: bool) -> dict:
 
 
 # (recipe, folder, frames or None for the recipe's duration, render scale, seed or None)
+STAGES = ("track", "keypoints", "landmarks", "match", "fill")
 CHAIN_CASES = [("crowd-6", "crowd6_seed0", 60, 0.5, 0), ("crowd-6", "crowd6_seed11", 60, 0.5, 11),
                ("crowd-6", "crowd6_seed23", 60, 0.5, 23), ("room-wander", "room_wander", None, 0.5, None),
                # the same room for half as long: peak memory must not grow with the take
@@ -133,9 +137,10 @@ def run_measured(stage: str, ws_path: Path) -> tuple[float, float]:
     return run_stage([stage, str(ws_path), "--quiet", "--force", *extra])
 
 
-def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed) -> dict:
-    """Render (once), then track -> keypoints -> landmarks -> match with the true calibration and
-    clocks, and score the identities per frame."""
+def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed, first: str = "track") -> dict:
+    """Render (once), then track -> keypoints -> landmarks -> match -> fill with the true calibration
+    and clocks (from stage ``first`` on: the earlier ones as an earlier run left them), and score the
+    identities per frame."""
     import shutil
 
     from mamma_kit.core.filled import load_identities
@@ -160,7 +165,7 @@ def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed)
     shutil.copyfile(ws.gt_dir / "calibration.toml", ws.calibration)
     shutil.copyfile(ws.gt_dir / "timing.toml", ws.timing)
     secs, peak_mb = {}, {}
-    for stage in ("track", "keypoints", "landmarks", "match", "fill"):
+    for stage in STAGES[STAGES.index(first):]:
         secs[stage], peak_mb[stage] = run_measured(stage, ws_path)
     clocks, _ = read_timing(ws.timing)
     r = frame_scores(ws, load_identities(ws), clocks)
@@ -182,10 +187,10 @@ def main_chain(args) -> None:
     for recipe, folder, frames, scale, seed in CHAIN_CASES:
         if args.case and folder not in args.case:
             continue
-        r = chain_case(args.root, recipe, folder, frames, scale, seed)
+        r = chain_case(args.root, recipe, folder, frames, scale, seed, args.first)
         name = f"{recipe} seed {seed}" if seed is not None else recipe
         rows.append({"capture": name, **r})
-        s = r["seconds"]
+        s = {k: r["seconds"].get(k, "-") for k in STAGES}
         print(f"{name:22s} {r['cameras']:4d} {r['tracks']:6d} {len(r['tracks_on_nothing']):9d} "
               f"{r['persons']:3d}/{r['gt_persons']:<3d} {100 * r['matched']:7.1f}% {100 * r['wrong']:5.1f}% "
               f"{r['switches']:8d} {len(r['false_tracks']):5d} {len(r['missed_persons']):6d}  "
@@ -194,10 +199,8 @@ def main_chain(args) -> None:
         print(f"    before the fill (the tracker's tracks): matched {100 * b['matched']:.1f}%, tracked "
               f"{100 * b['tracked']:.1f}%, wrong {100 * b['wrong']:.1f}%, switches {b['switches']}, "
               f"false {len(b['false_tracks'])}", flush=True)
-        m = r["peak_rss_mb"]
-        print(f"    peak memory MB (track/keypoints/landmarks/match/fill): "
-              f"{m['track']:.0f}/{m['keypoints']:.0f}/{m['landmarks']:.0f}/{m['match']:.0f}/{m['fill']:.0f}",
-              flush=True)
+        print("    peak memory MB (track/keypoints/landmarks/match/fill): "
+              + "/".join(f"{r['peak_rss_mb'][k]:.0f}" if k in r["peak_rss_mb"] else "-" for k in STAGES), flush=True)
         print(f"    matched per person {r['matched_per_person']}; false tracks {r['false_tracks']}; "
               f"tracks on nobody {r['tracks_on_nothing']}", flush=True)
     if args.json:
@@ -212,6 +215,8 @@ def main() -> None:
     ap.add_argument("--builtin", action="store_true", help="landmarks on builtin mask tracks instead of gt ids")
     ap.add_argument("--chain", action="store_true",
                     help="the whole chain from the videos (track, keypoints, landmarks, match), scored per frame")
+    ap.add_argument("--from", dest="first", choices=STAGES, default="track",
+                    help="with --chain: run from this stage on (the earlier stages' outputs in --root as they are)")
     ap.add_argument("--case", action="append", default=None, help="with --chain: only these folders; repeatable")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
     args = ap.parse_args()

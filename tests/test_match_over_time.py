@@ -226,3 +226,19 @@ def test_a_window_person_who_lost_the_assignment_does_not_join_a_chain_in_a_view
     a = next(ch for ch in chains if ("cam0", 1) in ch.windows[0])
     assert a.windows[1] == X  # Y would give the person two cam0 tracks at once
     assert any(ch.windows == {1: Y} for ch in chains)
+
+
+def test_two_tracks_given_each_others_person_are_swapped_back_where_the_other_fits_far_better():
+    # refine_frames alone, with a reject distance no frame exceeds: the chaining gave cam0's two
+    # tracks each other's person from frame 65 on; every other view says otherwise
+    from mamma_kit.matching.sources import ViewSource
+    from mamma_kit.matching.windows import refine_frames
+
+    rig, X, times, _ = take()
+    views = [ViewSource.in_memory(v) for v in views_of(rig, X, times)]
+    person = {v.name: np.tile(np.arange(2), (len(times), 1)) for v in views}
+    person["cam0"][65:] = person["cam0"][65:, ::-1]
+    edges = np.r_[times[0] + np.arange(8.0), np.inf]  # 1 s windows
+    out = refine_frames(person, views, edges, accept=0.069, reject=10.0)
+    assert (out["cam0"] == np.arange(2)).all()
+    assert all((out[c] == person[c]).all() for c in ("cam1", "cam2"))

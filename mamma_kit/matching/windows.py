@@ -36,6 +36,7 @@ from mamma_kit.matching.sources import ViewSource, take
 
 
 MIN_RUN = 3  # frames: a track's change of person shorter than this is undone (refine_frames)
+CLEARER = 2.0  # refine_frames: another person fitting a track this many times better than its own takes it
 
 
 @dataclass
@@ -430,7 +431,10 @@ def refine_frames(person: dict[str, np.ndarray], views: list[ViewSource], edges:
     instant (median epipolar distance over those views, person heights): a frame whose person
     the other views disagree with (> ``reject``) goes to the person they agree with (< ``accept``)
     if no other track of the view holds that person then, else to no one; an unassigned frame the
-    other views agree with joins that person. The windows' chaining decides who is who; this
+    other views agree with joins that person; a track that another person fits CLEARER times
+    better than its own (and worse than ``accept`` its own) changes too, the frame's changing
+    tracks taking the persons free at that instant by a Hungarian assignment, so two tracks that
+    swapped people who stay close are swapped back. The windows' chaining decides who is who; this
     places the switch of a track that jumps within a window on its frame. One window of frames
     is read at a time (the other views a frame beyond it on each side, for the instants they
     share); a change shorter than MIN_RUN frames is then undone over the whole take."""
@@ -488,15 +492,29 @@ def reassign_frames(va: ViewTracks, frames: np.ndarray, cols: np.ndarray, others
     best = np.argmin(Dinf, axis=0)  # (F, Kw)
     best_d = np.take_along_axis(Dinf, best[None], 0)[0]
     own_d = np.where(cur >= 0, np.take_along_axis(Dp, np.maximum(cur, 0)[None], 0)[0], np.nan)
-    for t, k in zip(*np.nonzero(va.valid_tk)):
-        p, q = cur[t, k], int(best[t, k])
-        if p >= 0 and not own_d[t, k] > reject:
-            continue  # the other views agree (or none sees the person now)
-        T, K = frames[t], cols[k]
-        if best_d[t, k] < accept and q != p and not (new_tk[T] == q).any():
-            new_tk[T, K] = q
-        elif p >= 0:
-            new_tk[T, K] = -1
+    with np.errstate(invalid="ignore"):
+        # a track whose person the other views disagree with, one without a person, and one that
+        # fits another person far better than its own (two tracks that swapped people where they
+        # cross: each is still near its old person, but the other fits at a fraction of it)
+        change_tk = (cur < 0) | (own_d > reject) | ((own_d > accept) & (own_d > CLEARER * best_d) & (best != cur))
+    change_tk &= va.valid_tk
+    for t in np.flatnonzero(change_tk.any(1)):
+        T, ks = frames[t], np.flatnonzero(change_tk[t])
+        was = new_tk[T, cols[ks]].copy()
+        new_tk[T, cols[ks]] = -1
+        held = set(int(p) for p in new_tk[T] if p >= 0)  # by the view's tracks that keep their person
+        C = Dinf[:, t, ks].T.copy()  # (changing tracks, P)
+        C[:, sorted(held)] = np.inf
+        C[C >= accept] = np.inf
+        got = {}
+        if np.isfinite(C).any():
+            r, c = linear_sum_assignment(np.where(np.isfinite(C), C, 1e6))
+            got = {int(i): int(j) for i, j in zip(r, c) if np.isfinite(C[i, j])}
+        for i, k in enumerate(ks):
+            if i in got:
+                new_tk[T, cols[k]] = got[i]
+            elif was[i] >= 0 and not own_d[t, k] > reject:
+                new_tk[T, cols[k]] = was[i]  # it found no clearly better person: it keeps its own
 
 
 def undo_short_changes(cur_tk: np.ndarray, new_tk: np.ndarray, valid_tk: np.ndarray) -> None:
