@@ -513,7 +513,7 @@ def reassign_frames(va: ViewTracks, frames: np.ndarray, cols: np.ndarray, others
         for i, k in enumerate(ks):
             if i in got:
                 new_tk[T, cols[k]] = got[i]
-            elif was[i] >= 0 and not own_d[t, k] > reject:
+            elif was[i] >= 0 and not own_d[t, k] > reject and was[i] not in got.values():
                 new_tk[T, cols[k]] = was[i]  # it found no clearly better person: it keeps its own
 
 
