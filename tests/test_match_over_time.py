@@ -242,3 +242,24 @@ def test_two_tracks_given_each_others_person_are_swapped_back_where_the_other_fi
     out = refine_frames(person, views, edges, accept=0.069, reject=10.0)
     assert (out["cam0"] == np.arange(2)).all()
     assert all((out[c] == person[c]).all() for c in ("cam1", "cam2"))
+
+
+def test_a_chain_near_another_at_a_few_instants_only_is_no_duplicate_of_it():
+    # b follows person 0 but took person 1's tracks for two windows (tracks that jumped there): at
+    # the instants both are triangulated b is where a is, yet a is alone most of its length
+    from mamma_kit.matching.sources import ViewSource
+    from mamma_kit.matching.windows import Chain, TrackGeometry
+
+    rig, X, times, _ = take()
+    views = [ViewSource.in_memory(v) for v in views_of(rig, X, times)]
+    for v in views:
+        v.window(-np.inf, np.inf)  # read once: the centroids the geometry triangulates
+    geo = TrackGeometry(views, np.r_[times[0] + np.arange(8.0), np.inf])
+
+    def of(person, wins):
+        return {w: {(c.name, person): 10 for c in rig} for w in wins}
+
+    a = Chain(of(1, range(6)))
+    b = Chain({**of(1, (4, 5)), **of(0, (6, 7))})
+    assert not geo.same_place(a, b)
+    assert geo.same_place(Chain(of(1, range(2, 6))), a)  # a second chain on a's tracks is one

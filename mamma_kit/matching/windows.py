@@ -250,7 +250,7 @@ class TrackGeometry:
         for w in sorted(ch.windows):
             members = list(ch.windows[w])
             if len({c for c, _ in members}) >= 2:
-                for t, X in self.triangulated(members):
+                for t, X in self.triangulated(members, w):
                     t_n.append(t)
                     X_n3.append(X)
         t, X = np.concatenate(t_n), np.concatenate(X_n3)
@@ -281,18 +281,20 @@ class TrackGeometry:
             return None
         return (t[0], np.median(X[:n], 0)), (t[-1], np.median(X[-n:], 0))
 
-    def triangulated(self, members) -> list[tuple[np.ndarray, np.ndarray]]:
+    def triangulated(self, members, window: int) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per track of the members' main view (the one with most frames), times (n,) and points
-        (n, 3) at its frames where two or more views' tracks are seen: the point nearest to their
-        centroids' rays (arrays, not a tuple per frame: a take of minutes has millions)."""
+        (n, 3) at its frames in ``window`` where two or more views' tracks are seen: the point
+        nearest to their centroids' rays (a window person is those tracks in that window only: a
+        track that jumps to someone else later is someone else there)."""
         by_view: dict[str, list] = {}
         for key in members:
             by_view.setdefault(key[0], []).append(key)
-        main = max(by_view, key=lambda c: sum(self.views[c].valid_tk[:, self.col[k]].sum() for k in by_view[c]))
+        main = max(by_view, key=lambda c: sum((self.views[c].valid_tk[:, self.col[k]] & (self.window_of[c] == window)).sum()
+                                              for k in by_view[c]))
         vm = self.views[main]
         out = []
         for key in by_view[main]:
-            f = np.flatnonzero(vm.valid_tk[:, self.col[key]])
+            f = np.flatnonzero(vm.valid_tk[:, self.col[key]] & (self.window_of[main] == window))
             t = vm.times_ref[f]
             rays = [self._rays(main, self.col[key], f)]  # each (F, 3) origin, (F, 3) direction, (F,) ok
             for c, keys in by_view.items():
@@ -349,7 +351,7 @@ def refuse_impossible(chains: list[Chain], geo: TrackGeometry, limits: Limits = 
             cams = sorted({c for c, _ in members})
             if len(cams) < 2:
                 continue
-            pts = [X for _, X in geo.triangulated(list(members))]
+            pts = [X for _, X in geo.triangulated(list(members), w)]
             X = np.concatenate(pts) if pts else np.zeros((0, 3))
             X = X[np.isfinite(X).all(1)]
             if len(X) < MIN_RUN:
