@@ -496,8 +496,7 @@ def keep_tracks(mt: MaskTracks) -> tuple[MaskTracks, list[dict]]:
     tracks at once lost 10-15 % of the people's frames in two of the three cameras). Track ids
     are renumbered 0..K-1 by first appearance."""
     T = len(mt.frame_times)
-    fps = 1.0 / float(np.median(np.diff(mt.frame_times))) if T > 1 else 30.0
-    min_frames = max(2, min(int(round(MIN_TRACK_S * fps)), T // 6))  # a clip under ~1 s: a sixth of it
+    min_frames = max(2, min(frames_in(MIN_TRACK_S, mt.frame_times), T // 6))  # a clip under ~1 s: a sixth of it
     kept = []
     for g in join_fragments(mt):
         frames = mt.present[:, g].any(1)
