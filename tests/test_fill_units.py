@@ -68,3 +68,19 @@ def test_appended_tracks_keep_both_sets_whole():
     lb.valid[:] = True
     lab = append_tracks(la, lb)
     assert lab.valid[:, 2].all() and not lab.valid[:, :2].any()
+
+
+def test_a_lone_find_makes_no_track_and_runs_split_at_long_gaps():
+    """Finds of one person in frames 0, 1, 2, 9, 20 and 21 (and another person's in frame 5 only):
+    runs of finds at most MAX_RUN_GAP apart, each a track if it has MIN_FOUND finds; the lone finds
+    in frames 9 and 5 (a glimpse) make none."""
+    from mamma_kit.filling.look import Found
+    from mamma_kit.filling.stage import MAX_RUN_GAP, MIN_FOUND, runs_of
+
+    assert MAX_RUN_GAP < 7 and MIN_FOUND == 2
+
+    def fd(frame, person):
+        return Found(frame, person, (), np.zeros((33, 5)), 0.9, 0.05)
+
+    runs = runs_of([fd(f, 3) for f in (21, 0, 9, 1, 2, 20)] + [fd(5, 4)])
+    assert [(p, [x.frame for x in r]) for p, r in runs] == [(3, [0, 1, 2]), (3, [20, 21])]

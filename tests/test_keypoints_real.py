@@ -403,21 +403,15 @@ def test_of_two_tracks_on_one_body_the_one_that_was_elsewhere_gives_it_up():
     assert give_up(3, own, 7, own, {}) == 7  # no history: the younger
 
 
-def test_fill_finds_a_person_a_view_lost_where_the_others_see_them(real_ws, tmp_path):
-    """`mamma-kit fill` on the real recording: one person's track loses eight frames in cam03 (cut
-    out of its masks and keypoints); the other three views see them there, so BlazePose looks where
-    their skeleton projects and the frames come back as a track of that person on the same body
-    (mask IoU with the cut masks > 0.5, limb joints within 5 % of the person's height), with
-    landmarks. The stages after read the view's tracks with the new ones; a match run again makes
-    the fill stale, and they read the match's own."""
+def _cut_from_cam03(real_ws, tmp_path, keypoints_too: bool = True):
+    """A copy of the real workspace, matched, with one person's cam03 track cut out of frames 6-13
+    (its masks, and its keypoints too unless told): (ws, ident, person, mask tracks before the cut,
+    the frames cut, their masks and limb points)."""
     import shutil
 
-    from mamma_kit.core import filled
     from mamma_kit.core.calibfile import read_calibration
     from mamma_kit.core.identities import write_identities
-    from mamma_kit.core.tracks import LandmarkTracks
     from mamma_kit.core.workspace import Workspace
-    from mamma_kit.filling.stage import run_fill
     from mamma_kit.matching.match import MatchSettings
     from mamma_kit.matching.pairs import ViewTracks
     from mamma_kit.matching.windows import WindowSettings, match_take
@@ -437,14 +431,31 @@ def test_fill_finds_a_person_a_view_lost_where_the_others_see_them(real_ws, tmp_
     assert len(cut) >= 6
     cut_masks = {int(f): mt.mask(int(f), k) for f in cut}
     cut_xy = kt.xy[cut, k].copy()
+    mt_before = MaskTracks.load(ws.mask_file("cam03"))
     mt.rle_index[cut, k] = 0
     mt.boxes[cut, k] = np.nan
     mt.save(ws.mask_file("cam03"))
-    kt.valid[cut, k] = False
-    kt.xy[cut, k] = np.nan
-    kt.save(ws.keypoints_file("cam03"))
+    if keypoints_too:
+        kt.valid[cut, k] = False
+        kt.xy[cut, k] = np.nan
+        kt.save(ws.keypoints_file("cam03"))
     write_identities(ws.identities, ident)
+    return ws, ident, person, mt_before, cut, cut_masks, cut_xy
 
+
+def test_fill_finds_a_person_a_view_lost_where_the_others_see_them(real_ws, tmp_path):
+    """`mamma-kit fill` on the real recording: one person's track loses eight frames in cam03 (cut
+    out of its masks and keypoints); the other three views see them there, so BlazePose looks where
+    their skeleton projects and the frames come back as a track of that person on the same body
+    (mask IoU with the cut masks > 0.5, limb joints within 5 % of the person's height), with
+    landmarks. The stages after read the view's tracks with the new ones; a match run again makes
+    the fill stale, and they read the match's own."""
+    from mamma_kit.core import filled
+    from mamma_kit.core.identities import write_identities
+    from mamma_kit.core.tracks import LandmarkTracks
+    from mamma_kit.filling.stage import run_fill
+
+    ws, ident, person, mt, cut, cut_masks, cut_xy = _cut_from_cam03(real_ws, tmp_path)
     res = run_fill(ws)
     assert not res["skipped"] and res["found"] >= len(cut) - 1, res
     fm = MaskTracks.load(ws.fill_file("masks", "cam03"))
@@ -471,3 +482,20 @@ def test_fill_finds_a_person_a_view_lost_where_the_others_see_them(real_ws, tmp_
     write_identities(ws.identities, ident)  # the match ran again: the fill no longer applies
     assert not filled.fill_is_current(ws)
     assert len(filled.load_masks(ws, "cam03").track_ids) == len(mt.track_ids)
+
+
+def test_fill_takes_no_body_a_track_of_the_view_already_has_its_skeleton_on(real_ws, tmp_path):
+    """The same cut, of the masks only: the track's skeleton stays on the body in those frames (as a
+    neighbour's track whose mask did not cover them whole). The person has no mask there, so the
+    fill looks, but what it finds is that track's body and it adds nothing on it."""
+    from mamma_kit.core import filled
+    from mamma_kit.filling.stage import run_fill
+
+    ws, ident, person, mt, cut, cut_masks, cut_xy = _cut_from_cam03(real_ws, tmp_path, keypoints_too=False)
+    res = run_fill(ws)
+    cam03 = next(r for r in res.get("cameras", []) if r["camera"] == "cam03")
+    assert cam03["gaps"] >= len(cut), res  # the person was looked for in the cut frames ...
+    fm = filled.load_masks(ws, "cam03")
+    new = [j for j, t in enumerate(fm.track_ids) if t > mt.track_ids.max()]
+    taken = int(fm.present[np.ix_(cut, new)].sum()) if new else 0
+    assert taken == 0, f"{taken} of the {len(cut)} frames' bodies taken from the track that has them"

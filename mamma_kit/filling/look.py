@@ -7,7 +7,8 @@ found when the model flags a person (>= MIN_FLAG) whose limb joints lie near the
 (median within AGREE_SHARE of the ROI's side: the body the other views see, not a neighbour the
 ROI also holds); their mask is the segmentation near that skeleton outside the other tracks, as the
 pose tracker builds it. Of two gaps of one frame that find one body, the one whose projection it
-fits better keeps it.
+fits better keeps it; a body whose torso is where one of the camera's own tracks has its skeleton
+that frame is that track's person (a neighbour whose mask did not cover them whole), not the gap's.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from mamma_kit.core import log
 from mamma_kit.core.tracks import MaskTracks, encode_mask
 from mamma_kit.filling.gaps import Gaps
-from mamma_kit.masks.pose import REACH_SHARE, SEG_THRESHOLD, limb_distance, skeleton_distance, torso_overlap
+from mamma_kit.masks.pose import REACH_SHARE, SEG_THRESHOLD, TORSO, limb_distance, skeleton_distance, torso_overlap
 
 # the ROI: the projected skeleton's box, its longer side grown by this share (the probe on crowd-6,
 # benchmarks/fill_feasibility.py: a quarter)
@@ -53,8 +54,10 @@ def roi_of(xy_n2: np.ndarray) -> np.ndarray:
     return np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, ROI_GROW * float(max(hi - lo)), 0.0])
 
 
-def look_in_frame(est, img: np.ndarray, xy_g332: np.ndarray, blank_hw: np.ndarray | None) -> list[tuple]:
-    """For each projected skeleton of one frame: (score, agree, mask, points_p5) or None."""
+def look_in_frame(est, img: np.ndarray, xy_g332: np.ndarray, blank_hw: np.ndarray | None,
+                  tracked_n332: np.ndarray | None = None) -> list[tuple]:
+    """For each projected skeleton of one frame: (score, agree, mask, points_p5) or None.
+    ``tracked_n332``: the skeletons of the camera's own tracks in that frame (keypoints stage)."""
     H, W = img.shape[:2]
     rois = np.stack([roi_of(xy) for xy in xy_g332])
     masks = None if blank_hw is None else [~blank_hw] * len(rois)
@@ -69,6 +72,9 @@ def look_in_frame(est, img: np.ndarray, xy_g332: np.ndarray, blank_hw: np.ndarra
         proj = np.nan_to_num(xy_g332[g], nan=-1e6)  # an untriangulated joint never agrees
         agree = limb_distance(res.xy[g], proj) / side
         if agree > AGREE_SHARE:
+            out.append(None)
+            continue
+        if tracked_n332 is not None and any(torso_overlap(res.xy[g], xy) < SAME_TORSO for xy in tracked_n332):
             out.append(None)
             continue
         prob, (x0, y0) = res.segmentation_of(g, (W, H))
@@ -98,9 +104,10 @@ def look_in_frame(est, img: np.ndarray, xy_g332: np.ndarray, blank_hw: np.ndarra
     return out
 
 
-def look(est, reader, masks: MaskTracks, gaps: Gaps, label: str) -> list[Found]:
+def look(est, reader, masks: MaskTracks, gaps: Gaps, label: str, keypoints=None) -> list[Found]:
     """Every gap of one camera looked for in its video (``reader``: a VideoReader of it; ``masks``: the
-    camera's tracks, on the same frames as the gaps)."""
+    camera's tracks, on the same frames as the gaps; ``keypoints``: their keypoint file, a
+    core.trackrows.TrackFile, or None)."""
     from mamma_kit.core.tracks import nearest_frames
 
     if not len(gaps):
@@ -114,7 +121,11 @@ def look(est, reader, masks: MaskTracks, gaps: Gaps, label: str) -> list[Found]:
         g_idx = np.flatnonzero(gaps.frame_g == f)
         cols = np.flatnonzero(masks.present[f])
         blank = np.logical_or.reduce([masks.mask(f, int(k)) for k in cols]) if len(cols) else None
-        for g, r in zip(g_idx, look_in_frame(est, img, gaps.xy_g332[g_idx], blank)):
+        tracked = None
+        if keypoints is not None:  # frames ascend: the file is read forward once
+            _, _, d = keypoints.rows(f, f + 1, keys=("xy",))
+            tracked = d["xy"][np.isfinite(d["xy"][:, TORSO]).all((1, 2))]
+        for g, r in zip(g_idx, look_in_frame(est, img, gaps.xy_g332[g_idx], blank, tracked)):
             if r is not None:
                 enc = encode_mask(r[2])
                 if enc is not None:

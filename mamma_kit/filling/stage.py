@@ -27,12 +27,15 @@ from mamma_kit.core.tracks import KeypointTracks, MaskTracks
 BLOCK_FRAMES = 512
 # found frames of one person in one camera further apart than this are two tracks
 MAX_RUN_GAP = 3
+# a run of fewer finds is a glimpse, no track (runs_of)
+MIN_FOUND = 2
 
 
-def new_tracks(cam: str, masks: MaskTracks, found: list, keypoints_path) -> tuple[MaskTracks, dict[int, int]]:
-    """The found frames as tracks: per person, runs of frames (gaps <= MAX_RUN_GAP) become tracks
-    with ids after the camera's own. Writes their keypoints (the model's points) to
-    ``keypoints_path`` and returns their masks and track id -> person id."""
+def runs_of(found: list) -> list[tuple[int, list]]:
+    """Per person, runs of found frames (gaps <= MAX_RUN_GAP) of at least MIN_FOUND finds: (person,
+    finds). A lone find is a glimpse, as the tracker's shortest tracks are: most are a sliver of
+    someone another track's mask half covers (crowd-6, room-wander: every fill track on no person
+    was one)."""
     by_person: dict[int, list] = {}
     for fd in found:
         by_person.setdefault(fd.person, []).append(fd)
@@ -46,6 +49,14 @@ def new_tracks(cam: str, masks: MaskTracks, found: list, keypoints_path) -> tupl
                 cur = []
             cur.append(fd)
         runs.append((p, cur))
+    return [r for r in runs if len(r[1]) >= MIN_FOUND]
+
+
+def new_tracks(cam: str, masks: MaskTracks, found: list, keypoints_path) -> tuple[MaskTracks, dict[int, int]]:
+    """The found frames as tracks: each run (runs_of) becomes a track with an id after the camera's
+    own. Writes their keypoints (the model's points) to ``keypoints_path`` and returns their masks
+    and track id -> person id."""
+    runs = runs_of(found)
     runs.sort(key=lambda r: (r[1][0].frame, r[0]))  # columns in order of first frame, as the tracker's
     first_id = int(masks.track_ids.max()) + 1 if len(masks.track_ids) else 0
     ids = first_id + np.arange(len(runs), dtype=np.int64)
@@ -137,7 +148,9 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
     for c in cams:
         gaps = _camera_gaps(c, cams, per_cam, covered[c], rig, persons)
         entry = cap.cameras[c]
-        found = look(est, VideoReader(entry.video, entry.rotation), masks[c], gaps, f"fill {c}")
+        with TrackFile(ws.keypoints_file(c), KeypointTracks, "keypoint file") as kf:
+            found = look(est, VideoReader(entry.video, entry.rotation), masks[c], gaps, f"fill {c}", kf)
+        found = [fd for _, run in runs_of(found) for fd in run]
         row = {"camera": c, "gaps": len(gaps), "found": len(found), "tracks": 0}
         if found:
             mt, person_of = new_tracks(c, masks[c], found, ws.fill_file("keypoints", c))
