@@ -52,12 +52,11 @@ def runs_of(found: list) -> list[tuple[int, list]]:
     return [r for r in runs if len(r[1]) >= MIN_FOUND]
 
 
-def new_tracks(cam: str, masks: MaskTracks, found: list, keypoints_path) -> tuple[MaskTracks, dict[int, int]]:
-    """The found frames as tracks: each run (runs_of) becomes a track with an id after the camera's
-    own. Writes their keypoints (the model's points) to ``keypoints_path`` and returns their masks
-    and track id -> person id."""
-    runs = runs_of(found)
-    runs.sort(key=lambda r: (r[1][0].frame, r[0]))  # columns in order of first frame, as the tracker's
+def new_tracks(cam: str, masks: MaskTracks, runs: list, keypoints_path) -> tuple[MaskTracks, dict[int, int]]:
+    """Each run of finds (runs_of) as a track with an id after the camera's own. Writes their
+    keypoints (the model's points) to ``keypoints_path`` and returns their masks and track id ->
+    person id."""
+    runs = sorted(runs, key=lambda r: (r[1][0].frame, r[0]))  # columns in order of first frame, as the tracker's
     first_id = int(masks.track_ids.max()) + 1 if len(masks.track_ids) else 0
     ids = first_id + np.arange(len(runs), dtype=np.int64)
     mt = MaskTracks.from_masks(cam, masks.image_size, masks.frame_times, ids,
@@ -150,10 +149,10 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
         entry = cap.cameras[c]
         with TrackFile(ws.keypoints_file(c), KeypointTracks, "keypoint file") as kf:
             found = look(est, VideoReader(entry.video, entry.rotation), masks[c], gaps, f"fill {c}", kf)
-        found = [fd for _, run in runs_of(found) for fd in run]
-        row = {"camera": c, "gaps": len(gaps), "found": len(found), "tracks": 0}
-        if found:
-            mt, person_of = new_tracks(c, masks[c], found, ws.fill_file("keypoints", c))
+        runs = runs_of(found)
+        row = {"camera": c, "gaps": len(gaps), "found": sum(len(run) for _, run in runs), "tracks": 0}
+        if runs:
+            mt, person_of = new_tracks(c, masks[c], runs, ws.fill_file("keypoints", c))
             outputs += [ws.fill_file("keypoints", c), mt.save(ws.fill_file("masks", c))]
             if read_landmarks is None:
                 read_landmarks = LandmarksReader(options)
