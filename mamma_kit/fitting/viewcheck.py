@@ -8,18 +8,18 @@ can make are tried on it, each a change of one file:
 
 - ``view_swapped``: its tracks of two persons exchanged (identities.json): in a run of frames the
   other person's body fits its landmarks far better than their own;
-- ``view_clock``: its clock off (timing.toml): the bodies some frames earlier or later fit its
-  landmarks far better than the bodies at their own time;
+- ``view_clock``: its clock off (timing.toml): the people in it move as in the other views some
+  frames earlier or later (timing.crosscheck on the fit's keypoints: the fit absorbs a late view,
+  bending its bodies towards it, so the bodies cannot tell);
 - ``view_pose``: its pose off (calibration.toml): a pose solved from the bodies (PnP on the
   fitted landmarks and its observed ones) fits far better, some distance from the calibrated one;
 - ``view_disagrees``: it lands far from the bodies and none of the three explains it.
 
 Only cameras that share their people with two or more other views are judged (with two views the
-bodies are as much this view's work as the other's). A clock or a pose is tried on the odd camera
-out only: the one without which the other views agree best (each left out in turn, the bodies
-moved per person and frame to fit the rest), on a sample of blocks of frames; a fault the fit
-absorbed (the bodies bent towards the faulty view) may leave no camera odd. Arrays: C cameras (rig
-order), P persons, T frames, S landmarks (an evenly spread subset of the fit's).
+bodies are as much this view's work as the other's). A pose is tried on the odd camera out only:
+the one without which the other views agree best (each left out in turn, the bodies moved per
+person and frame to fit the rest), on a sample of blocks of frames. Arrays: C cameras (rig order),
+P persons, T frames, S landmarks (an evenly spread subset of the fit's), J = 33 keypoints.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ MIN_FRAMES = 10  # person-frames a camera needs to be judged
 GAIN = 0.7  # a fault explains a view when it brings the view's median error to this share or less
 SWAP_SHARE = 0.5  # ... per frame, for a swap: the other person's body at this share of their own
 SWAP_RUN = 3  # frames: a shorter run of a better-fitting other person is noise
-MAX_SHIFT_S = 0.5  # the clock offsets tried, both ways
+CLOCK_WINDOW_S = 20.0  # the clocks are checked on this much of the take's middle (an offset shows in any)
 MIN_MOVE = (0.1, 1.0)  # m, deg: a solved pose nearer than both to the calibrated one is the same pose
 PNP_INLIER_PX = 8.0  # RANSAC's inlier distance for the pose solved from the bodies
 DISAGREE = (2.5, 3.0)  # a view is off when its median error exceeds both x the others' and + px
@@ -162,9 +162,9 @@ def solve_pose(camera, world_n3: np.ndarray, obs_n2: np.ndarray):
     return camera.copy(R=cv2.Rodrigues(rvec)[0], t=tvec.reshape(3))
 
 
-def view_findings(rig, world_ptS3: np.ndarray, obs_cptS2: np.ndarray, fps: float, person_ids: list[int],
+def view_findings(rig, world_ptS3: np.ndarray, obs_cptS2: np.ndarray, person_ids: list[int],
                   max_points: int = 20000) -> list[ViewFinding]:
-    """Every camera judged against the fitted bodies (see module doc)."""
+    """Every camera judged against the fitted bodies (see module doc; the clocks: clock_findings)."""
     names = rig.names
     C, P, T = obs_cptS2.shape[:3]
     seen_cpt = np.isfinite(obs_cptS2).any(-1).sum(-1) >= MIN_POINTS
@@ -188,7 +188,7 @@ def view_findings(rig, world_ptS3: np.ndarray, obs_cptS2: np.ndarray, fps: float
         n = rig.names[c]
         found = []
         if c == odd:
-            found = clock_or_pose(rig[n], bodies, obs_cptS2[c][:, sel], rest[:, sel], sel, fps, max_points)
+            found = pose_finding(rig[n], bodies, obs_cptS2[c][:, sel], rest[:, sel], max_points)
         base = _median(np.where(rest, e_cpt[c], np.nan))
         if not found and base > max(DISAGREE[0] * ref, ref + DISAGREE[1]):
             found = [("view_disagrees", f"{n}'s landmarks lie a median {base:.0f} px from the fitted bodies, the "
@@ -253,29 +253,11 @@ def odd_camera(rig, world_ptS3, obs_cptS2, candidates: list[int]) -> tuple[int |
     return best, bodies[best]
 
 
-def clock_or_pose(cam, world_ptS3, obs_ptS2, rest_pt, sel_t, fps: float, max_points: int) -> list:
-    """A clock offset or a moved camera that explains a view's landmarks against the bodies the other
-    views place (frames ``sel_t`` of the take); [(check, what, cause)] with CAM for the camera."""
-    P = world_ptS3.shape[0]
+def pose_finding(cam, world_ptS3, obs_ptS2, rest_pt, max_points: int) -> list:
+    """A moved camera that explains a view's landmarks against the bodies the other views place:
+    [(check, what, cause)] with CAM for the camera, or []."""
     e_pt = frame_errors(cam, world_ptS3, obs_ptS2)
     base = _median(np.where(rest_pt, e_pt, np.nan))
-    n = len(sel_t)
-    best_k, best_e = 0, base
-    for k in range(-int(round(MAX_SHIFT_S * fps)), int(round(MAX_SHIFT_S * fps)) + 1):
-        if k == 0:
-            continue
-        i = np.arange(n)
-        j = i + k
-        ok = (j >= 0) & (j < n)
-        ok[ok] &= sel_t[j[ok]] - sel_t[i[ok]] == k  # the frame k later is in the sample
-        jj = np.where(ok, j, i)
-        ek = frame_errors(cam, world_ptS3[:, jj], obs_ptS2)
-        both = rest_pt & ok[None] & np.isfinite(ek)
-        if both.sum() < MIN_FRAMES:
-            continue
-        e, e_own = _median(np.where(both, ek, np.nan)), _median(np.where(both, e_pt, np.nan))
-        if e < GAIN * e_own and e < best_e:
-            best_k, best_e = k, e
     pick = np.nonzero(rest_pt[..., None] & np.isfinite(obs_ptS2).all(-1) & np.isfinite(world_ptS3).all(-1))
     e_pose, moved = np.inf, (0.0, 0.0)
     if len(pick[0]) >= 6 * MIN_POINTS:
@@ -286,21 +268,42 @@ def clock_or_pose(cam, world_ptS3, obs_ptS2, rest_pt, sel_t, fps: float, max_poi
             e_pose = _median(np.where(rest_pt, frame_errors(solved, world_ptS3, obs_ptS2), np.nan))
             moved = (float(np.linalg.norm(solved.center - cam.center)),
                      float(np.degrees(np.linalg.norm(rotvec(solved.R @ cam.R.T)))))
-    pose_ok = e_pose < GAIN * base and (moved[0] >= MIN_MOVE[0] or moved[1] >= MIN_MOVE[1])
-    if best_k != 0 and (not pose_ok or best_e <= e_pose):
-        dt = best_k / fps
-        return [("view_clock", f"CAM's landmarks fit the bodies the other views place as they are {abs(dt):.2f} s "
-                               f"{'later' if dt > 0 else 'earlier'} ({best_e:.0f} px) better than at their own time "
-                               f"({base:.0f} px)",
-                 f"CAM's clock in timing.toml is off by about {abs(dt):.2f} s (its frames are "
-                 f"{'late' if dt > 0 else 'early'}): check the sync (`mamma-kit sync`)")]
-    if pose_ok:
+    if e_pose < GAIN * base and (moved[0] >= MIN_MOVE[0] or moved[1] >= MIN_MOVE[1]):
         return [("view_pose", f"a pose of CAM solved from the bodies the other views place fits its landmarks at "
                               f"{e_pose:.0f} px, its calibrated pose at {base:.0f} px (the solved one "
                               f"{moved[0]:.2f} m / {moved[1]:.1f} deg away)",
                  "CAM's pose in calibration.toml is off (the camera moved after the board session, or the board "
                  "did not tie it to the others): calibrate again")]
     return []
+
+
+def clock_findings(rig, times_t: np.ndarray, kp_xy_cptj2: np.ndarray, kp_vis_cptj: np.ndarray,
+                   person_ids: list[int], window_s: float = CLOCK_WINDOW_S) -> list[ViewFinding]:
+    """Cameras whose clock the others' motion disagrees with (timing.crosscheck), from the fit's
+    keypoints on the reference clock (0 visibility where a view does not see a person): one finding
+    per person the camera sees."""
+    from mamma_kit.timing.crosscheck import clocks_off
+
+    T = len(times_t)
+    mid = 0.5 * (times_t[0] + times_t[-1]) if T else 0.0
+    win = np.flatnonzero(np.abs(times_t - mid) <= 0.5 * window_s)
+    if len(win) < 2:
+        return []
+    seen_cpt = kp_vis_cptj.max(-1) > 0
+    points = {n: (rig[n], times_t[win], kp_xy_cptj2[c][:, win].transpose(1, 0, 2, 3),  # persons as tracks
+                  kp_vis_cptj[c][:, win].transpose(1, 0, 2), seen_cpt[c][:, win].T) for c, n in enumerate(rig.names)}
+    out = []
+    for off in clocks_off(points):
+        c, o = rig.names.index(off.camera), off.offset_s
+        what = (f"{off.camera}'s frames show the people as the other views do {abs(o):.2f} s "
+                f"{'earlier' if o < 0 else 'later'} than timing.toml times them (against "
+                + ", ".join(f"{n} {v:+.2f} s" for n, v in off.pairs_s.items())
+                + f"; the other views agree within {off.others_s:.2f} s)")
+        cause = (f"{off.camera}'s clock in timing.toml is off by about {abs(o):.2f} s: check the sync "
+                 f"(`mamma-kit sync`, the report's sync plots), or sync by a clap, LTC or a flash")
+        out += [ViewFinding(p, "view_clock", _span(seen_cpt[c, p]), what, cause)
+                for p in range(len(person_ids)) if seen_cpt[c, p].any()]
+    return out
 
 
 def _span(mask_t: np.ndarray) -> np.ndarray:

@@ -3,4 +3,4 @@
 solve over all cameras, diagnostics, and a per-reference-time frame timeline."""
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
-__all__ = ["stage"]
+__all__ = ["crosscheck", "stage"]

@@ -86,14 +86,20 @@ class View:
 
     @classmethod
     def of(cls, cam: Camera, kt: KeypointTracks) -> "View":
-        xy = kt.xy[:, :, LIMBS].astype(np.float64)
-        seen = kt.valid[..., None] & (kt.visibility[:, :, LIMBS] > MIN_VISIBILITY)
+        return cls.from_points(cam, kt.frame_times, kt.xy, kt.visibility, kt.valid)
+
+    @classmethod
+    def from_points(cls, cam: Camera, times_t: np.ndarray, xy_tkj2: np.ndarray, vis_tkj: np.ndarray,
+                    valid_tk: np.ndarray) -> "View":
+        """From BlazePose's 33 points per frame and track (or person): px, visibility, presence."""
+        xy = xy_tkj2[:, :, LIMBS].astype(np.float64)
+        seen = valid_tk[..., None] & (vis_tkj[:, :, LIMBS] > MIN_VISIBILITY)
         und = cam.undistort_pixels(np.nan_to_num(xy).reshape(-1, 2)).reshape(xy.shape)
         und = np.where(seen[..., None], und, np.nan)
-        allxy = np.where(kt.valid[..., None, None], kt.xy, np.nan)
+        allxy = np.where(valid_tk[..., None, None], xy_tkj2, np.nan)
         with np.errstate(invalid="ignore"):
             h = np.nanmax(allxy[..., 1], axis=2) - np.nanmin(allxy[..., 1], axis=2)
-        return cls(cam, np.asarray(kt.frame_times, np.float64), und, np.where(kt.valid, h, np.nan))
+        return cls(cam, np.asarray(times_t, np.float64), und, np.where(valid_tk, h, np.nan))
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Keypoints and heights linearly interpolated at own-clock times t (N,): (N, K, J, 2), (N, K)."""
