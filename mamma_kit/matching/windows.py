@@ -33,6 +33,7 @@ from mamma_kit.core.tracks import nearest_frames
 from mamma_kit.fitting.checks import Limits
 from mamma_kit.matching.pairs import ViewTracks
 from mamma_kit.matching.sources import ViewSource, take
+from mamma_kit.matching.stature import closest_points, exchange_by_stature
 
 
 MIN_RUN = 3  # frames: a track's change of person shorter than this is undone (refine_frames)
@@ -49,6 +50,7 @@ class WindowSettings:
     link_speed: float = 2.5  # m/s: ... if the gap between their ends is walkable at this speed
     link_margin_m: float = 0.6
     refine: bool = True  # place each track's switches frame by frame (refine_frames)
+    stature: bool = True  # two persons' labels exchanged where their limb lengths say so (matching/stature.py)
     # ... a frame whose other views disagree by more than this (person heights) leaves its person:
     # twice the match's own cut-off, since one frame's keypoints are noisier than a tracklet's
     # (AV16.3 meeting room at 0.12 / 0.2 / 0.3: cam2 followed right 82 / 91 / 91 %, cam3 wrong
@@ -304,7 +306,7 @@ class TrackGeometry:
                     for kk in keys:
                         o, d, ok = self._rays(c, self.col[kk], np.maximum(g, 0))
                         rays.append((o, d, ok & (g >= 0) & v.valid_tk[np.maximum(g, 0), self.col[kk]]))
-            X, n = _closest_points(rays)
+            X, n = closest_points(rays)
             out.append((t[n >= 2], X[n >= 2]))
         return out
 
@@ -317,25 +319,6 @@ class TrackGeometry:
         d = np.linalg.solve(camera.K, np.c_[np.nan_to_num(c), np.ones(len(c))].T).T @ camera.R
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return np.broadcast_to(camera.center, d.shape), d, ok
-
-
-def _closest_points(rays) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame, the point nearest to that frame's rays in the least-squares sense, and how
-    many rays it had. ``rays``: [(origins (F, 3), directions (F, 3), ok (F,))]."""
-    F = len(rays[0][0])
-    A = np.zeros((F, 3, 3))
-    b = np.zeros((F, 3))
-    n = np.zeros(F, np.int64)
-    for o, d, ok in rays:
-        M = (np.eye(3) - d[:, :, None] * d[:, None, :]) * ok[:, None, None]
-        A += M
-        b += np.einsum("fij,fj->fi", M, o)
-        n += ok
-    X = np.full((F, 3), np.nan)
-    two = n >= 2
-    if two.any():
-        X[two] = np.linalg.solve(A[two], b[two][..., None])[..., 0]
-    return X, n
 
 
 def refuse_impossible(chains: list[Chain], geo: TrackGeometry, limits: Limits = Limits()) -> tuple[list[Chain], list]:
@@ -659,6 +642,10 @@ def match_take(views: list[ViewTracks | ViewSource], kp_views: list[ViewTracks |
                       for v, k in zip(views, kp_views or [None] * len(views))]
         person = refine_frames(person, dist_views, edges, accept=_distance_at(s.min_affinity, s.lam),
                                reject=w_s.refine_reject)
+    exchanged = []
+    if w_s.stature and kp_views is not None:
+        kps = [k for v, k in zip(views, kp_views) if k is not None and np.array_equal(k.track_ids, v.track_ids)]
+        person, exchanged = exchange_by_stature(person, views, kps, edges)
     assignments, segments, frames = identities_from_person(person, views)
     assigned = {(c, t) for c, m in assignments.items() for t in m}
     unassigned = [{"camera": v.name, "track": int(t), "reason": "no frame with landmarks"}
@@ -674,7 +661,7 @@ def match_take(views: list[ViewTracks | ViewSource], kp_views: list[ViewTracks |
         "persons": len(kept), "windows": n_win, "window_s": w_s.window_s, "people": w_s.people,
         "view_counts": {str(p): len(ch.views()) for p, ch in enumerate(kept)},
         "multiview_frames": {str(p): ch.multiview_frames for p, ch in enumerate(kept)},
-        "chains": len(chains), "set_aside": dropped, "refused": refused,
+        "chains": len(chains), "set_aside": dropped, "refused": refused, "exchanged_by_stature": exchanged,
         "segmented_tracks": sum(len({t for t, *_ in v}) for v in segments.values()),
     }
     settings_d = {**asdict(s), **{k: v for k, v in asdict(w_s).items()}}
