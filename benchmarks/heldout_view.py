@@ -26,6 +26,11 @@ sure hand points triangulated, with PCK at 5 % as well (a hand is about 10 % of 
     nice -n 10 python benchmarks/heldout_view.py [--root /work/bench/heldout] [--threads 2] [--hands off]
         [--fit-hands off] [--phone rotated|upright]
 
+--people: the cameras' poses refined from the people first (`mamma-kit calibrate WS --people`: a
+bundle adjustment on every camera's BlazePose points of the matched people, all four cameras), then
+the match again and the held-out fits on that calibration; without it, the calibration as given
+(an earlier --people run's refinement is undone first).
+
 --phone rotated: the same on the videos as an upright phone stores them (portrait frames stored
 landscape with a display rotation, HEVC Main10 .MOV, AAC, three frames dropped in cam02;
 phone_videos); --phone upright: the same copies without the rotation (the encoding's share).
@@ -253,6 +258,8 @@ def main() -> None:
     ap.add_argument("--phone", choices=("rotated", "upright"), default=None,
                     help="phone-stored copies (phone_videos): rotated as phones store them, or the same stored upright")
     ap.add_argument("--phone-crf", type=int, default=18, help="the copies' HEVC quality (lower: more bits)")
+    ap.add_argument("--people", action="store_true", help="refine the cameras' poses from the people first "
+                    "(`calibrate --people`, from the calibration as given, all cameras), then match again")
     a = ap.parse_args()
     from mamma_kit.body.kp_regressor import hand_regressor, keypoint_regressor, stacked
     from mamma_kit.body.model import load_body_model
@@ -262,6 +269,13 @@ def main() -> None:
     print(f"load average before: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     t0 = time.perf_counter()
     ws = prepare(a.root, a.threads, a.hands, a.phone, a.phone_crf)
+    before = ws.root / "calibration.before-people.toml"
+    if before.is_file():  # the calibration as given, whatever an earlier --people run left
+        shutil.copyfile(before, ws.calibration)
+        before.unlink()
+    if a.people:
+        cli("calibrate", ws.root, "--people", "-q")
+    cli("match", ws.root, "-q")
     log.set_quiet(True)
     model = load_body_model(ws.load_capture().body_model)
     reg = stacked(keypoint_regressor(model), hand_regressor(model))

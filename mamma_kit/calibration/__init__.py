@@ -2,4 +2,4 @@
 and import/export of other tools' calibration formats (formats.py)."""
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
-__all__ = ["board", "formats", "lens", "stage"]
+__all__ = ["board", "formats", "lens", "people", "stage"]

@@ -38,6 +38,10 @@ def calibrate_cmd(
     max_views: int = typer.Option(40, "--max-views", help="Views per camera used for its intrinsics."),
     no_floor: bool = typer.Option(False, "--no-floor", help="Do not look for the board on the floor."),
     force: bool = typer.Option(False, "--force", help="Workspace: recalibrate even if nothing changed."),
+    people: bool = typer.Option(False, "--people", help="Workspace, after `match`: refine every camera's pose "
+                                "in calibration.toml from the matched people's keypoints (a bundle adjustment; "
+                                "the file as it was kept as calibration.before-people.toml); then run the "
+                                "stages from `match` again."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
@@ -46,6 +50,23 @@ def calibrate_cmd(
 
     setup(quiet, json_out)
     settings = settings_from(model, detect_fps, max_views, floor=not no_floor)
+    if people:
+        from mamma_kit.calibration.people import refine_workspace
+        from mamma_kit.core.workspace import Workspace
+
+        if len(targets) != 1 or not targets[0].is_dir():
+            raise UserError("--people refines a workspace's calibration", "pass the workspace folder alone")
+        res = refine_workspace(Workspace(targets[0]))
+        if json_out:
+            emit_json(res)
+        elif res["refined"]:
+            for n in res["refined"]:
+                d = res["cameras"][n]
+                log.info(f"{n}: moved {100 * d['moved_m']:.1f} cm, turned {d['turned_deg']:.2f} deg; the people's "
+                         f"points a median {d['median_px_before']} px -> {d['median_px_after']} px from it")
+            log.info(f"{res['output']} refined ({res['before']} holds it as it was): run `mamma-kit capture-to-smplx "
+                     f"{targets[0]} --from match`")
+        return
     if len(targets) == 1 and targets[0].is_dir():
         from mamma_kit.core.workspace import Workspace
 

@@ -149,6 +149,16 @@ class StageManifest:
         self.hasher.save()
         return self.path
 
+    def update_outputs(self, outputs: Iterable[Path]) -> None:
+        """Record ``outputs`` as they are now in an existing manifest (a later step that refines a
+        stage's output in place, e.g. `calibrate --people`); nothing without a manifest."""
+        data = self.load()
+        if data is None:
+            return
+        data["outputs"] = {**data.get("outputs", {}), **self._hashes(outputs)}
+        write_json(self.path, data)
+        self.hasher.save()
+
     def invalidate(self) -> None:
         if self.path.exists():
             os.remove(self.path)

@@ -2,4 +2,4 @@
 module per stage with ``evaluate(ws) -> dict | None``; stage.py's ``evaluate_workspace`` gathers them."""
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
-__all__ = ["stage"]
+__all__ = ["calibration", "stage"]

@@ -273,7 +273,8 @@ def pose_finding(cam, world_ptS3, obs_ptS2, rest_pt, max_points: int) -> list:
                               f"{e_pose:.0f} px, its calibrated pose at {base:.0f} px (the solved one "
                               f"{moved[0]:.2f} m / {moved[1]:.1f} deg away)",
                  "CAM's pose in calibration.toml is off (the camera moved after the board session, or the board "
-                 "did not tie it to the others): calibrate again")]
+                 "did not tie it to the others): calibrate again, or refine the poses from the people "
+                 "(`mamma-kit calibrate WORKSPACE --people`)")]
     return []
 
 
