@@ -6,20 +6,21 @@ rig): every fit then bends between the views, and no fit is right in that camera
 themselves are a calibration object seen by every view at once. After `match` has said who is who:
 
 - observations: the body points BlazePose sees (nose, shoulders to feet; visibility >= MIN_VIS) in
-  every track with a person, in up to MAX_FRAMES frames spread over the take, undistorted once with
-  each camera's lens (intrinsics and lens stay as calibrated);
+  every track with a person, at up to MAX_FRAMES instants spread over the take (each view's points
+  interpolated between its two frames around them: clocks offset by part of a frame see a moving
+  person a step apart), undistorted once with each camera's lens (intrinsics and lens stay);
 - unknowns: each camera's rotation and translation, and each person's points in each frame (3D),
   started from their triangulation (points two or more views see);
 - a bundle adjustment (scipy's least_squares, sparse Jacobian) of the pixel errors, robust (soft L1,
   SIGMA_PX) and weighted by the visibility, with a prior holding each camera within PRIOR_DEG and
   PRIOR_M of its calibrated pose; the refined rig is put back in the calibration's world frame (the
   similarity that overlays the two rigs' cameras): the floor and scale stay where they were;
-- only cameras the people say are off move: a first adjustment of every camera tells which ones
-  the points lie OFF_FACTOR times the cameras' typical error after it from (a camera whose pose is
-  off stands out; BlazePose's own disagreements between views are spread over all cameras: on the
-  demo's accurate board calibration, moving every camera made the fit worse, MPJPE 39.8 -> 105 mm,
-  and none stands out there); those are refined with the others held, and with none the
-  calibration is left as it is. OFF_FACTOR is set between the two captures this was measured on;
+- only cameras the people say are off move: those from which the points the other cameras place
+  lie OFF_FACTOR times the cameras' typical error after a trial adjustment of every camera (a camera
+  whose pose is off stands out; BlazePose's own disagreements between views are spread over all
+  cameras: on the demo's accurate board calibration, moving every camera made the fit worse, MPJPE
+  39.8 -> 105 mm, and none stands out there); those are refined with the others held, and with none
+  the calibration is left as it is. OFF_FACTOR is set between the two captures this was measured on;
   a rig whose cameras are all off by a similar amount shows none standing out.
 
 The real lab recording in ../shared/real (its Qualisys calibration): cam01 and cam03 stand out and
@@ -38,7 +39,6 @@ from mamma_kit.core.errors import UserError
 
 BODY = np.r_[0, 11:33]  # nose, shoulders to feet (the face's ten points would weigh the head ten times)
 MIN_VIS = 0.5
-LANDMARKS = 64  # of the landmark network's points, spread over the body (source="landmarks")
 MAX_FRAMES = 200
 SIGMA_PX = 3.0
 PRIOR_DEG, PRIOR_M = 5.0, 0.5
@@ -60,14 +60,13 @@ class Observations:
     n_points: int
 
 
-def people_observations(ws, rig: Rig, max_frames: int = MAX_FRAMES, source: str = "keypoints") -> Observations:
-    """The matched people's points of the workspace (``source``: "keypoints", BlazePose's body
-    points, or "landmarks", LANDMARKS of the landmark network's surface points spread over the
-    body; identities.json), at instants of the first camera's frames on the reference clock, each
-    view's points interpolated between its two frames around them."""
+def people_observations(ws, rig: Rig, max_frames: int = MAX_FRAMES) -> Observations:
+    """The matched people's BlazePose body points of the workspace (keypoints/, identities.json),
+    at instants of the first camera's frames on the reference clock, each view's points
+    interpolated between its two frames around them."""
     from mamma_kit.core.filled import load_identities
     from mamma_kit.core.timingfile import read_timing
-    from mamma_kit.core.tracks import KeypointTracks, LandmarkTracks
+    from mamma_kit.core.tracks import KeypointTracks
 
     missing = [c for c in rig.names if not ws.keypoints_file(c).is_file()]
     if missing or not ws.identities.is_file():
@@ -75,13 +74,8 @@ def people_observations(ws, rig: Rig, max_frames: int = MAX_FRAMES, source: str 
                         f"missing)", "run `mamma-kit capture-to-smplx WORKSPACE --to match` first")
     ident = load_identities(ws)
     clocks = read_timing(ws.timing)[0] if ws.timing.is_file() else {}
-    if source == "landmarks":
-        kts = {c: LandmarkTracks.load(ws.landmarks_file(c)) for c in rig.names}
-        n = kts[rig.names[0]].xy.shape[2]
-        which = np.unique(np.linspace(0, n - 1, min(LANDMARKS, n)).round().astype(int))
-    else:
-        kts = {c: KeypointTracks.load(ws.keypoints_file(c)) for c in rig.names}
-        which = BODY
+    kts = {c: KeypointTracks.load(ws.keypoints_file(c)) for c in rig.names}
+    which = BODY
     times = {c: clocks[c].to_ref(kt.frame_times) if c in clocks else kt.frame_times for c, kt in kts.items()}
     grid = times[rig.names[0]]
     grid = grid[np.unique(np.linspace(0, len(grid) - 1, min(max_frames, len(grid))).round().astype(int))]
@@ -258,7 +252,7 @@ def cameras_off(rig: Rig, obs: Observations, trial: dict) -> tuple[list[str], fl
     return [rig.cameras[c].name for c in off], typical
 
 
-def refine_workspace(ws, max_frames: int = MAX_FRAMES, source: str = "keypoints") -> dict:
+def refine_workspace(ws, max_frames: int = MAX_FRAMES) -> dict:
     """calibration.toml's camera poses refined from the matched people (module doc); the file as it
     was kept beside it (calibration.before-people.toml; refined again, the one before the first
     refinement stays), the report in its diagnostics."""
@@ -271,12 +265,10 @@ def refine_workspace(ws, max_frames: int = MAX_FRAMES, source: str = "keypoints"
     if not ws.calibration.is_file():
         raise UserError(f"{ws.root} has no calibration.toml", "calibrate first (`mamma-kit calibrate WORKSPACE`)")
     rig, _ = read_calibration(ws.calibration)
-    obs = people_observations(ws, rig, max_frames, source)
+    obs = people_observations(ws, rig, max_frames)
     log.info(f"calibrate --people: {obs.n_points} points of the matched people, {len(obs.cam_o)} observations")
-    # which cameras the people say are off: a camera whose pose is off lies far from the points
-    # the other views place (its error falls several times when it may move); BlazePose's own
-    # disagreements between views, which an accurate calibration leaves, are spread over all
-    # cameras and fall little (the demo's board calibration: 4.9-5.8 px -> 2.5-4.0 px)
+    # which cameras the people say are off (cameras_off): the demo's accurate board calibration
+    # 10.4-12.6 px from the others' points against a typical 3.4 px after the trial: none
     _, trial = refine_poses(rig, obs)
     off, after = cameras_off(rig, obs, trial)
     if not off:
