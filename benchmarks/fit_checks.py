@@ -20,7 +20,7 @@ def checks_of(root: Path) -> dict:
     from mamma_kit.fitting.data import open_fit_data
     from mamma_kit.body import skeleton as sk
     from mamma_kit.fitting.stage import physical_checks
-    from mamma_kit.fitting.viewcheck import clock_findings, gather, view_findings
+    from mamma_kit.fitting.viewcheck import camera_findings, gather
 
     ws = Workspace(root)
     res = {int(p.stem.split("_")[1]): read_smplx_result(p) for p in ws.person_files()}
@@ -42,9 +42,8 @@ def checks_of(root: Path) -> dict:
             d = data.slice_frames(s)
             yield s, SimpleNamespace(xy=d.xy[:, cols], vis=d.vis[:, cols], present=d.present[:, cols])
 
-    views = view_findings(data.rig, *gather(model, blocks(), pose, transl, betas), pids)
-    if data.kp_xy is not None:
-        views += clock_findings(data.rig, data.frame_times, data.kp_xy[:, cols], data.kp_vis[:, cols], pids)
+    kp = (data.kp_xy[:, cols], data.kp_vis[:, cols]) if data.kp_xy is not None else (None, None)
+    views = camera_findings(data.rig, *gather(model, blocks(), pose, transl, betas), pids, data.frame_times, *kp)
     return physical_checks(ws, model, data.rig, data.frame_times, np.stack([res[p].joints for p in pids]), observed,
                            seen, betas, pids, views)
 

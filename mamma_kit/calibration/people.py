@@ -110,12 +110,9 @@ def people_observations(ws, rig: Rig, max_frames: int = MAX_FRAMES) -> Observati
     point_o = point_o.ravel()
     cam_o, xy, w = np.array(cam_o), np.concatenate(xy_o).astype(np.float64), np.concatenate(w_o).astype(np.float64)
     # a point two or more cameras see, once per camera (a person twice in one view: the first track)
-    views_p = np.zeros((len(keys), len(rig)), bool)
     first = np.zeros(len(cam_o), bool)
-    for o in range(len(cam_o)):
-        if not views_p[point_o[o], cam_o[o]]:
-            views_p[point_o[o], cam_o[o]] = first[o] = True
-    keep = first & (views_p.sum(1) >= 2)[point_o]
+    first[np.unique(point_o * len(rig) + cam_o, return_index=True)[1]] = True
+    keep = first & (np.bincount(point_o[first], minlength=len(keys)) >= 2)[point_o]
     used, point_o = np.unique(point_o[keep], return_inverse=True)
     cam_o, xy, w = cam_o[keep], xy[keep], w[keep]
     xn = np.zeros_like(xy)
@@ -125,20 +122,6 @@ def people_observations(ws, rig: Rig, max_frames: int = MAX_FRAMES) -> Observati
     return Observations(cam_o, point_o, xn, xy, w, len(used))
 
 
-def _rotations(rv_c3: np.ndarray) -> np.ndarray:
-    """Rodrigues vectors (C, 3) -> rotation matrices (C, 3, 3)."""
-    th = np.linalg.norm(rv_c3, axis=1)[:, None, None]
-    k = rv_c3 / np.maximum(th[:, :, 0], 1e-12)
-    Kx = np.zeros((len(rv_c3), 3, 3))
-    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    Kx = Kx - Kx.transpose(0, 2, 1)
-    return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
-
-
-def _rodrigues(R_c33: np.ndarray) -> np.ndarray:
-    return np.stack([rotvec(R) for R in R_c33])
-
-
 def refine_poses(rig: Rig, obs: Observations, free: list[str] | None = None, max_nfev: int = 200
                  ) -> tuple[Rig, dict]:
     """The rig with the poses of the cameras in ``free`` (None: all) refined from the observations
@@ -146,6 +129,7 @@ def refine_poses(rig: Rig, obs: Observations, free: list[str] | None = None, max
     turned, and its median pixel error before and after."""
     from scipy.optimize import least_squares
     from scipy.sparse import coo_matrix
+    from scipy.spatial.transform import Rotation
 
     from mamma_kit.evaluation.calibration import align_rig
 
@@ -163,11 +147,12 @@ def refine_poses(rig: Rig, obs: Observations, free: list[str] | None = None, max
 
     def residuals(x):
         rv, tv, X = unpack(x)
-        R = _rotations(rv)
+        R = Rotation.from_rotvec(rv).as_matrix()
         Xc = np.einsum("oij,oj->oi", R[obs.cam_o], X[obs.point_o]) + tv[obs.cam_o]
         r = (Xc[:, :2] / Xc[:, 2:3] - obs.xn_o2) * sw
         centre = -np.einsum("cji,cj->ci", R, tv)
-        prior = np.c_[_rodrigues(R @ R0.transpose(0, 2, 1)) / np.radians(PRIOR_DEG), (centre - C0) / PRIOR_M] * hold[:, None]
+        turned = Rotation.from_matrix(R @ R0.transpose(0, 2, 1)).as_rotvec()
+        prior = np.c_[turned / np.radians(PRIOR_DEG), (centre - C0) / PRIOR_M] * hold[:, None]
         return np.r_[r.ravel(), prior.ravel()]
 
     # which unknowns each residual depends on: an observation on its camera's 6 and its point's 3
@@ -180,11 +165,11 @@ def refine_poses(rig: Rig, obs: Observations, free: list[str] | None = None, max
     S = coo_matrix((np.ones(sum(len(r) for r in rows)), (np.concatenate(rows), np.concatenate(cols))),
                    shape=(2 * O + 6 * C, 6 * C + 3 * P)).tocsr()
     S.data[:] = 1
-    x0 = np.r_[_rodrigues(R0).ravel(), np.stack([c.t for c in rig]).ravel(), np.nan_to_num(X0).ravel()]
+    x0 = np.r_[Rotation.from_matrix(R0).as_rotvec().ravel(), np.stack([c.t for c in rig]).ravel(), np.nan_to_num(X0).ravel()]
     res = least_squares(residuals, x0, jac_sparsity=S, loss="soft_l1", f_scale=1.0, x_scale="jac", method="trf",
                         max_nfev=max_nfev)
     rv, tv, X = unpack(res.x)
-    R = _rotations(rv)
+    R = Rotation.from_rotvec(rv).as_matrix()
     # the people fix the cameras relative to each other only: the refined rig is put back in the
     # calibration's world frame (the similarity that best overlays the two rigs' cameras: the held
     # ones where two or more are held), so what remains is what the views disagreed on, not a drift
@@ -240,15 +225,16 @@ def cameras_off(rig: Rig, obs: Observations, trial: dict) -> tuple[list[str], fl
                                    if d["median_px_after"] is not None])), SIGMA_PX)
     xy_cp2 = points_by_camera(rig, obs)
     off: list[int] = []
+    errs = {c: trial["cameras"][cam.name]["median_px_before"] for c, cam in enumerate(rig)}  # none left out yet
     while True:
-        errs = {c: error_from_others(rig, xy_cp2, c, set(off)) for c in range(len(rig)) if c not in off}
-        errs = {c: e for c, e in errs.items() if e is not None}
+        errs = {c: e for c, e in errs.items() if e is not None and c not in off}
         if not errs:
             break
         worst = max(errs, key=errs.get)
         if errs[worst] <= OFF_FACTOR * typical:
             break
         off.append(worst)
+        errs = {c: error_from_others(rig, xy_cp2, c, set(off)) for c in range(len(rig)) if c not in off}
     return [rig.cameras[c].name for c in off], typical
 
 

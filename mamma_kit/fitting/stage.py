@@ -16,7 +16,7 @@ import numpy as np
 
 from mamma_kit.fitting.checks import check_fit, rest_heights, summary_lines
 from mamma_kit.fitting.stages import FitConfig, Fitter, FitResult
-from mamma_kit.fitting.viewcheck import clock_findings, gather, view_findings
+from mamma_kit.fitting.viewcheck import camera_findings, gather
 
 REPORT_NAME = "fit_report.json"
 
@@ -165,9 +165,7 @@ def fit_workspace(ws, cameras: int | None = None, camera_list: list[str] | None 
         if old not in written:
             old.unlink()
     world, obs = gather(model, _blocks(fitter, result, raw=True), result.pose, result.transl, result.betas)
-    views = view_findings(data.rig, world, obs, list(result.person_ids))
-    if data.kp_xy is not None:
-        views += clock_findings(data.rig, data.frame_times, data.kp_xy, data.kp_vis, list(result.person_ids))
+    views = camera_findings(data.rig, world, obs, list(result.person_ids), data.frame_times, data.kp_xy, data.kp_vis)
     checks = physical_checks(ws, model, data.rig, result.frame_times, result.joints, result.observed, data.present,
                              result.betas, result.person_ids, views)
     for line in summary_lines(checks):

@@ -291,6 +291,7 @@ def clock_findings(rig, times_t: np.ndarray, kp_xy_cptj2: np.ndarray, kp_vis_cpt
     if len(win) < 2:
         return []
     seen_cpt = kp_vis_cptj.max(-1) > 0
+    kp_xy_cptj2 = np.where((kp_vis_cptj > 0)[..., None], kp_xy_cptj2, np.nan)  # the fit's 0 px where unseen
     points = {n: (rig[n], times_t[win], kp_xy_cptj2[c][:, win].transpose(1, 0, 2, 3),  # persons as tracks
                   kp_vis_cptj[c][:, win].transpose(1, 0, 2), seen_cpt[c][:, win].T) for c, n in enumerate(rig.names)}
     out = []
@@ -304,6 +305,16 @@ def clock_findings(rig, times_t: np.ndarray, kp_xy_cptj2: np.ndarray, kp_vis_cpt
                  f"(`mamma-kit sync`, the report's sync plots), or sync by a clap, LTC or a flash")
         out += [ViewFinding(p, "view_clock", _span(seen_cpt[c, p]), what, cause)
                 for p in range(len(person_ids)) if seen_cpt[c, p].any()]
+    return out
+
+
+def camera_findings(rig, world_ptS3: np.ndarray, obs_cptS2: np.ndarray, person_ids: list[int], times_t: np.ndarray,
+                    kp_xy_cptj2: np.ndarray | None, kp_vis_cptj: np.ndarray | None) -> list[ViewFinding]:
+    """Every camera judged: against the fitted bodies (view_findings) and its clock against the
+    others' (clock_findings, where the fit has keypoints)."""
+    out = view_findings(rig, world_ptS3, obs_cptS2, person_ids)
+    if kp_xy_cptj2 is not None:
+        out += clock_findings(rig, times_t, kp_xy_cptj2, kp_vis_cptj, person_ids)
     return out
 
 

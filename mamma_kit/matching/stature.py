@@ -60,8 +60,8 @@ def closest_points(rays) -> tuple[np.ndarray, np.ndarray]:
     return X, n
 
 
-def _rays(camera, xy_n2: np.ndarray, ok_n: np.ndarray):
-    """Rays through undistorted pixels: origins, unit directions, which exist."""
+def rays_through(camera, xy_n2: np.ndarray, ok_n: np.ndarray):
+    """Rays through undistorted pixels (N, 2): origins, unit directions (N, 3), which exist (N,)."""
     d = np.linalg.solve(camera.K, np.c_[np.nan_to_num(xy_n2), np.ones(len(xy_n2))].T).T @ camera.R
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     return np.broadcast_to(camera.center, d.shape), d, ok_n & np.isfinite(xy_n2).all(-1)
@@ -100,7 +100,7 @@ def limb_lengths(person: dict[str, np.ndarray], views: list, edges: np.ndarray, 
                 fr = np.maximum(g, 0)
                 xy = vw.xy_tkl2[fr, k][:, joints]  # (n, 8, 2)
                 ok = one[:, None] & vw.vis_tkl[fr, k][:, joints]
-                rays[p].append(_rays(v.camera, xy.reshape(-1, 2), ok.reshape(-1)))
+                rays[p].append(rays_through(v.camera, xy.reshape(-1, 2), ok.reshape(-1)))
         for p in range(P):
             if len(rays[p]) < 2:
                 continue
@@ -116,18 +116,18 @@ def limb_lengths(person: dict[str, np.ndarray], views: list, edges: np.ndarray, 
 
 def _smooth(L_np: np.ndarray, n: int = SMOOTH_FRAMES) -> np.ndarray:
     """A running median over n instants (NaN where the instant itself has none)."""
-    N = len(L_np)
     pad = np.pad(L_np, ((n // 2, n // 2), (0, 0)), constant_values=np.nan)
-    win = np.stack([pad[i:i + N] for i in range(n)])
+    win = np.lib.stride_tricks.sliding_window_view(pad, n, axis=0)  # (N, P, n)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        out = np.nanmedian(win, 0)
+        out = np.nanmedian(win, -1)
     return np.where(np.isfinite(L_np), out, np.nan)
 
 
-def exchanges(times: np.ndarray, L_np: np.ndarray, hips_np3: np.ndarray) -> list[tuple[int, int, float, float]]:
-    """(p, q, t0, t1): runs of instants where persons p and q wear each other's bodies (module doc);
-    q == p's partner either way, each pair once."""
+def exchanges(times: np.ndarray, L_np: np.ndarray, hips_np3: np.ndarray
+              ) -> tuple[list[tuple[int, int, float, float]], np.ndarray]:
+    """(p, q, t0, t1): runs of instants where persons p and q wear each other's bodies (module doc),
+    each pair once; and each person's own length (P,)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         own = np.nanmedian(L_np, 0)  # (P,)
@@ -150,7 +150,7 @@ def exchanges(times: np.ndarray, L_np: np.ndarray, hips_np3: np.ndarray) -> list
                 met = _meeting(hips_np3, p, q, a) if b - a + 1 >= MIN_RUN else None
                 if met is not None:  # exchanged from where they met (their lengths blur while they overlap)
                     out.append((p, q, float(times[min(met, a)]), float(times[b])))
-    return out
+    return out, own
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -183,14 +183,11 @@ def exchange_by_stature(person: dict[str, np.ndarray], views: list, kp_views: li
     if P < 2 or len(kp_views) < 2:
         return person, []
     times, L, hips = limb_lengths(person, kp_views, edges, P)
-    found = exchanges(times, L, hips)
+    found, own = exchanges(times, L, hips)
     if not found:
         return person, []
     out = {n: a.copy() for n, a in person.items()}
     done = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        own = np.nanmedian(L, 0)
     for p, q, t0, t1 in found:
         for v in views:
             f = (v.times_ref >= t0 - 0.5 * v.period) & (v.times_ref <= t1 + 0.5 * v.period)

@@ -33,7 +33,7 @@ from mamma_kit.core.tracks import nearest_frames
 from mamma_kit.fitting.checks import Limits
 from mamma_kit.matching.pairs import ViewTracks
 from mamma_kit.matching.sources import ViewSource, take
-from mamma_kit.matching.stature import closest_points, exchange_by_stature
+from mamma_kit.matching.stature import closest_points, exchange_by_stature, rays_through
 
 
 MIN_RUN = 3  # frames: a track's change of person shorter than this is undone (refine_frames)
@@ -314,11 +314,7 @@ class TrackGeometry:
         """Rays through track k's centroid at the frames: origins (F, 3), unit directions (F, 3),
         and which exist (F,)."""
         c = self.centroid[cam][frames, k]  # (F, 2)
-        ok = np.isfinite(c).all(-1)
-        camera = self.views[cam].camera
-        d = np.linalg.solve(camera.K, np.c_[np.nan_to_num(c), np.ones(len(c))].T).T @ camera.R
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        return np.broadcast_to(camera.center, d.shape), d, ok
+        return rays_through(self.views[cam].camera, c, np.ones(len(c), bool))
 
 
 def refuse_impossible(chains: list[Chain], geo: TrackGeometry, limits: Limits = Limits()) -> tuple[list[Chain], list]:
