@@ -13,11 +13,11 @@ DEMO_OUT ?= demo-out
 
 env: $(VENV)/.installed viewer
 
-$(VENV)/.installed: pyproject.toml
+$(VENV)/.installed: pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q "$(TORCH_SPEC)"
-	$(BIN)/python -m pip install -q -e ".[test,smplx,ray]"
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test,smplx,ray]"
 	$(BIN)/python -c "import torch; print('torch', torch.__version__)"
 	touch $@
 

@@ -185,10 +185,7 @@ class VideoReader:
         try:
             with av.open(str(self.path)) as c:
                 for fr in c.decode(video=0):
-                    m9 = None
-                    for sd in fr.side_data:
-                        if sd.type.name == "DISPLAYMATRIX":
-                            m9 = np.frombuffer(bytes(sd), np.int32)
+                    m9 = _display_matrix_of(fr)
                     depth = max((comp.bits for comp in fr.format.components), default=8)
                     return from_display_matrix(m9), transfer_of(fr.color_trc), int(depth)
         except av.error.FFmpegError:
@@ -297,3 +294,16 @@ def probe(path: str | Path, rotation: int | None = None) -> VideoInfo:
 def read_timecode(path: str | Path) -> str | None:
     """The start timecode of a QuickTime/MP4 tmcd track ('HH:MM:SS:FF' or ';' for drop-frame)."""
     return VideoReader(path).info.timecode
+
+
+def _display_matrix_of(frame: av.VideoFrame) -> np.ndarray | None:
+    """The frame's 3x3 display matrix as 9 int32, or None.
+
+    PyAV changed how a frame's side data iterates: up to 18.1.0 it yields the entries, from 18.1.1
+    (a Mapping) their types, each looked up in the container."""
+    container = frame.side_data
+    for item in container:
+        sd = item if hasattr(item, "type") else container[item]
+        if sd.type.name == "DISPLAYMATRIX":
+            return np.frombuffer(bytes(sd), np.int32)
+    return None
