@@ -405,8 +405,8 @@ def test_of_two_tracks_on_one_body_the_one_that_was_elsewhere_gives_it_up():
 
 def test_a_detection_of_a_person_already_found_is_not_read_again():
     """unexplained: a detection whose ROI is a found person's (centre within a fifth of the side,
-    side within 1.3 times) is dropped; one beside them, or the smaller ROI of someone behind them,
-    is kept. PoseResult.joined keeps both calls' rows in order."""
+    side within 1.3 times) is dropped; one beside them, the smaller ROI of someone behind them, or
+    any near a lost track is kept. PoseResult.joined keeps both calls' rows in order."""
     from mamma_kit.keypoints.estimator import PoseResult
     from mamma_kit.masks.pose import unexplained
 
@@ -417,6 +417,8 @@ def test_a_detection_of_a_person_already_found_is_not_read_again():
     kept = unexplained(det, found)
     assert kept.tolist() == det[1:].tolist()
     assert unexplained(det, np.zeros((0, 4))).shape == (3, 4)
+    # a track lost beside them: the detection there is read (its fresh ROI may find the hidden one)
+    assert len(unexplained(det, found, np.array([[150.0, 200.0, 280.0, 0.0]]))) == 3
     assert unexplained(np.zeros((0, 4)), found).shape == (0, 4)
 
     def result(n: int, v: float) -> PoseResult:

@@ -217,11 +217,25 @@ class PoseBackend:
         (limb joints or torsos: two people's heads can touch)."""
         keep: list[int] = []
         for n in order:
-            same = any(limb_distance(res.xy[n], res.xy[m]) < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2])
-                       or torso_overlap(res.xy[n], res.xy[m]) < TORSO_SAME for m in keep)
-            if not same:
+            if not any(PoseBackend._same(res, n, m) for m in keep):
                 keep.append(int(n))
         return keep
+
+    @classmethod
+    def _found_alone(cls, tracks: list[_Track], res) -> tuple[np.ndarray, np.ndarray]:
+        """(ROIs of the people the followed ROIs in ``res`` found alone: their track seen last frame,
+        flagged a person, and no other followed ROI on the same skeleton; the last ROIs of the tracks
+        lost now)."""
+        good = np.flatnonzero(res.score >= MIN_FOLLOW_FLAG)
+        alone = [i for i in good if tracks[i].missed == 0 and not any(cls._same(res, i, j) for j in good if j != i)]
+        lost = [tr.roi for i, tr in enumerate(tracks) if tr.missed > 0 or i not in good]
+        return res.next_rois[alone].reshape(-1, 4), np.array(lost, float).reshape(-1, 4)
+
+    @staticmethod
+    def _same(res, n: int, m: int) -> bool:
+        """Candidates n and m are one skeleton (limb joints or torsos: two people's heads can touch)."""
+        return (limb_distance(res.xy[n], res.xy[m]) < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2])
+                or torso_overlap(res.xy[n], res.xy[m]) < TORSO_SAME)
 
     @staticmethod
     def _skeleton_cost(tracks: list[_Track], res, cands: list[int]) -> np.ndarray:
@@ -333,10 +347,14 @@ class PoseBackend:
         for t, img in log.track(rd.frames(max_side=WORK_SIDE), f"track {cam.name} (pose)", total=len(times)):
             ti = int(np.argmin(np.abs(times - t)))
             # candidates: every track's followed ROI (its last good one while missed), then the
-            # detections of people no followed ROI found (the landmark model would only find them again)
+            # detections, but not those of a person whose followed ROI found them alone (the landmark
+            # model would only find them again); near a lost track, or where two ROIs find one body
+            # (a person passing behind another), every detection is read: its fresh ROI can find the
+            # hidden one that the followed ROI lost
             res = est.landmarks(img, np.array([tr.roi for tr in tracks]).reshape(-1, 4),
                                 masks=self._keep_masks(tracks, prev, W, H))
-            det = unexplained(self._detections(img, ti % tile_every == 0), res.next_rois[res.score >= MIN_FOLLOW_FLAG])
+            det = self._detections(img, ti % tile_every == 0)
+            det = unexplained(det, *self._found_alone(tracks, res))
             res = PoseResult.joined(res, est.landmarks(img, det))
             source = np.r_[np.arange(len(tracks)), np.full(len(det), -1)]
             good = np.flatnonzero(res.score >= np.where(source >= 0, MIN_FOLLOW_FLAG, MIN_POSE_FLAG))
@@ -401,18 +419,23 @@ class PoseBackend:
         return mt, summ
 
 
-def unexplained(det_n4: np.ndarray, found_m4: np.ndarray) -> np.ndarray:
+def unexplained(det_n4: np.ndarray, found_m4: np.ndarray, lost_l4: np.ndarray | None = None) -> np.ndarray:
     """The detections (ROIs cx, cy, side, rotation) that are not a person already found this frame
     (``found_m4``: the ROIs the followed people's points give): the centre within MATCH_SHARE of
     the side and the side within SAME_SIDE of each other. The landmark model on such a detection
     finds the same skeleton again (about half the tracker's landmark calls on the real lab
-    recording); a person hidden behind another has a smaller ROI and keeps theirs."""
+    recording); a person hidden behind another has a smaller ROI and keeps theirs, and so does a
+    detection whose centre lies within a side of a lost track's last ROI (``lost_l4``)."""
     if not len(det_n4) or not len(found_m4):
         return det_n4
     d = np.linalg.norm(det_n4[:, None, :2] - found_m4[None, :, :2], axis=2)
     side = np.maximum(det_n4[:, None, 2], found_m4[None, :, 2])
     ratio = side / np.maximum(np.minimum(det_n4[:, None, 2], found_m4[None, :, 2]), 1e-6)
     same = (d <= MATCH_SHARE * side) & (ratio <= SAME_SIDE)
+    if lost_l4 is not None and len(lost_l4):
+        near = np.linalg.norm(det_n4[:, None, :2] - lost_l4[None, :, :2], axis=2) <= np.maximum(
+            det_n4[:, None, 2], lost_l4[None, :, 2])
+        same &= ~near.any(1)[:, None]
     return det_n4[~same.any(1)]
 
 
