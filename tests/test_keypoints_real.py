@@ -403,34 +403,6 @@ def test_of_two_tracks_on_one_body_the_one_that_was_elsewhere_gives_it_up():
     assert give_up(3, own, 7, own, {}) == 7  # no history: the younger
 
 
-def test_a_detection_of_a_person_already_found_is_not_read_again():
-    """unexplained: a detection whose ROI is a found person's (centre within a fifth of the side,
-    side within 1.3 times) is dropped; one beside them, the smaller ROI of someone behind them, or
-    any near a lost track is kept. PoseResult.joined keeps both calls' rows in order."""
-    from mamma_kit.keypoints.estimator import PoseResult
-    from mamma_kit.masks.pose import unexplained
-
-    found = np.array([[100.0, 200.0, 300.0, 0.0]])
-    det = np.array([[110.0, 190.0, 280.0, 0.1],  # the found person again
-                    [400.0, 200.0, 300.0, 0.0],  # someone beside them
-                    [105.0, 180.0, 150.0, 0.0]])  # someone behind them: half the side
-    kept = unexplained(det, found)
-    assert kept.tolist() == det[1:].tolist()
-    assert unexplained(det, np.zeros((0, 4))).shape == (3, 4)
-    # a track lost beside them: the detection there is read (its fresh ROI may find the hidden one)
-    assert len(unexplained(det, found, np.array([[150.0, 200.0, 280.0, 0.0]]))) == 3
-    assert unexplained(np.zeros((0, 4)), found).shape == (0, 4)
-
-    def result(n: int, v: float) -> PoseResult:
-        z = np.full((n, 33), v)
-        return PoseResult(np.full((n, 33, 2), v), z, z, z, np.full(n, v), np.full((n, 4), v), np.full((n, 4), v),
-                          [None] * n, np.full((n, 8, 8), v), np.full((n, 2, 3), v))
-
-    both = PoseResult.joined(result(2, 1.0), result(1, 2.0))
-    assert len(both) == 3 and both.score.tolist() == [1.0, 1.0, 2.0] and both.seg_logits.shape == (3, 8, 8)
-    assert PoseResult.joined(result(0, 0.0), result(1, 2.0)).score.tolist() == [2.0]
-
-
 def _cut_from_cam03(real_ws, tmp_path, keypoints_too: bool = True):
     """A copy of the real workspace, matched, with one person's cam03 track cut out of frames 6-13
     (its masks, and its keypoints too unless told): (ws, ident, person, mask tracks before the cut,

@@ -75,20 +75,6 @@ class PoseResult:
         """ROI n's segmentation probability on the image: (prob (h, w) over its box, (x0, y0))."""
         return bp.segmentation_to_image(self.seg_logits[n], self.affines[n], image_wh)
 
-    def __len__(self) -> int:
-        return len(self.score)
-
-    @staticmethod
-    def joined(a: "PoseResult", b: "PoseResult") -> "PoseResult":
-        """a's ROIs, then b's: one result of two calls on one frame."""
-        if not len(a) or not len(b):
-            return b if not len(a) else a
-        cat = lambda x, y: None if x is None or y is None else np.concatenate([x, y])  # noqa: E731
-        return PoseResult(cat(a.xy, b.xy), cat(a.z, b.z), cat(a.visibility, b.visibility),
-                          cat(a.presence, b.presence), cat(a.score, b.score), cat(a.next_rois, b.next_rois),
-                          cat(a.rois, b.rois), a.segmentation + b.segmentation, cat(a.seg_logits, b.seg_logits),
-                          cat(a.affines, b.affines))
-
 
 class PoseEstimator:
     def __init__(self, threads: int | None = None):

@@ -22,15 +22,12 @@ from scipy.optimize import linear_sum_assignment
 
 from mamma_kit.core import log
 from mamma_kit.core.tracks import MaskTracks
-from mamma_kit.keypoints.estimator import MIN_FOLLOW_FLAG, MIN_POSE_FLAG, PoseResult
+from mamma_kit.keypoints.estimator import MIN_FOLLOW_FLAG, MIN_POSE_FLAG
 from mamma_kit.masks.base import CameraInput, MaskTrackBuilder, track_summary
 
 # two detections (whole frame and a tile) whose ROI centres lie within this share of the side are
 # one person: only one of them goes on to the landmark model
 MATCH_SHARE = 0.2
-# a detection is a person already followed when its ROI's centre lies within MATCH_SHARE of the side
-# of that person's and their sides differ by less than this factor
-SAME_SIDE = 1.3
 # a skeleton is the same person as a track's last one when its points lie within this share of the
 # track's ROI side (60 fps or 30 fps motion between two frames stays well inside)
 TRACK_SHARE = 0.12
@@ -50,14 +47,10 @@ MIN_TILE_PX = 140
 # a new track starts only from a skeleton the landmark model flags a person at least this surely
 # (a followed one keeps going above MIN_FOLLOW_FLAG)
 MIN_START_FLAG = 0.9
-# tiles are looked at every this long (new people enter rarely, and the detector costs 12 ms a tile
-# here: 21 tiles of a 1088x1920 frame cost twice the frame's landmark calls): every 5th frame at
-# 30 fps, every 10th at 60 fps
-TILE_EVERY_S = 1 / 6
+# tiles are looked at every this many frames (new people enter rarely; the detector costs 5 ms a call)
+TILE_EVERY = 5
 # a person's mask reaches at most this share of its ROI side from its skeleton
 REACH_SHARE = 0.16
-# the distance of pixels to a skeleton is computed at this share of the size (skeleton_distance)
-DISTANCE_SCALE = 0.5
 # two skeletons whose limb joints lie within this share of the ROI side (about 1.25 body heights)
 # are one person
 SAME_SHARE = 0.06
@@ -152,27 +145,18 @@ def tiles(W: int, H: int) -> np.ndarray:
 
 
 def skeleton_distance(xy_p2: np.ndarray, weight_p: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
-    """Distance (px) of every pixel of ``box`` to the person's bones (points weighted >= 0.3).
-    Computed at DISTANCE_SCALE of the box's size and scaled up: the distances are compared with a
-    reach of tens of pixels and with each other (the segmentation they cut comes at 256x256 per ROI),
-    and the transform at full size was a tenth of the tracker's time on the real lab recording."""
+    """Distance (px) of every pixel of ``box`` to the person's bones (points weighted >= 0.3)."""
     from mamma_kit.keypoints.blazepose import SKELETON
 
     x0, y0, x1, y1 = box
-    s = DISTANCE_SCALE if min(x1 - x0, y1 - y0) >= 64 else 1.0
-    h, w = max(1, int(np.ceil((y1 - y0) * s))), max(1, int(np.ceil((x1 - x0) * s)))
-    canvas = np.full((h, w), 255, np.uint8)
+    canvas = np.full((y1 - y0, x1 - x0), 255, np.uint8)
     off = np.array([x0, y0])
     for a, b in SKELETON:
         if weight_p[a] >= 0.3 and weight_p[b] >= 0.3:
-            cv2.line(canvas, tuple(int(v) for v in (xy_p2[a] - off) * s), tuple(int(v) for v in (xy_p2[b] - off) * s),
-                     0, max(1, int(round(3 * s))))
+            cv2.line(canvas, tuple(int(v) for v in xy_p2[a] - off), tuple(int(v) for v in xy_p2[b] - off), 0, 3)
     if canvas.min() == 255:
-        return np.full((y1 - y0, x1 - x0), np.inf, np.float32)
-    dist = cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
-    if s == 1.0:
-        return dist
-    return cv2.resize(dist, (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR) * np.float32(1 / s)
+        return np.full(canvas.shape, np.inf, np.float32)
+    return cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
 
 
 class PoseBackend:
@@ -191,12 +175,12 @@ class PoseBackend:
         return self._est
 
     # ---- one frame ----------------------------------------------------------------------------------
-    def _detections(self, img: np.ndarray, tiled: bool) -> np.ndarray:
-        """(N, 4) ROIs of the people the detector finds in this frame (``tiled``: in its tiles too)."""
+    def _detections(self, img: np.ndarray, t: int) -> np.ndarray:
+        """(N, 4) ROIs of the people the detector finds in this frame."""
         H, W = img.shape[:2]
         est = self.est
         dets = [est.detect(img)]
-        if tiled:
+        if t % TILE_EVERY == 0:
             tl = tiles(W, H)
             if len(tl):
                 dets += est.detect_regions(img, tl, margin=1.0)
@@ -217,25 +201,11 @@ class PoseBackend:
         (limb joints or torsos: two people's heads can touch)."""
         keep: list[int] = []
         for n in order:
-            if not any(PoseBackend._same(res, n, m) for m in keep):
+            same = any(limb_distance(res.xy[n], res.xy[m]) < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2])
+                       or torso_overlap(res.xy[n], res.xy[m]) < TORSO_SAME for m in keep)
+            if not same:
                 keep.append(int(n))
         return keep
-
-    @classmethod
-    def _found_alone(cls, tracks: list[_Track], res) -> tuple[np.ndarray, np.ndarray]:
-        """(ROIs of the people the followed ROIs in ``res`` found alone: their track seen last frame,
-        flagged a person, and no other followed ROI on the same skeleton; the last ROIs of the tracks
-        lost now)."""
-        good = np.flatnonzero(res.score >= MIN_FOLLOW_FLAG)
-        alone = [i for i in good if tracks[i].missed == 0 and not any(cls._same(res, i, j) for j in good if j != i)]
-        lost = [tr.roi for i, tr in enumerate(tracks) if tr.missed > 0 or i not in good]
-        return res.next_rois[alone].reshape(-1, 4), np.array(lost, float).reshape(-1, 4)
-
-    @staticmethod
-    def _same(res, n: int, m: int) -> bool:
-        """Candidates n and m are one skeleton (limb joints or torsos: two people's heads can touch)."""
-        return (limb_distance(res.xy[n], res.xy[m]) < SAME_SHARE * max(res.rois[n, 2], res.rois[m, 2])
-                or torso_overlap(res.xy[n], res.xy[m]) < TORSO_SAME)
 
     @staticmethod
     def _skeleton_cost(tracks: list[_Track], res, cands: list[int]) -> np.ndarray:
@@ -342,21 +312,16 @@ class PoseBackend:
         tracks: list[_Track] = []
         next_id = 0
         max_missed, max_coast = frames_in(MAX_MISSED_S, times), frames_in(MAX_COAST_S, times)
-        tile_every = frames_in(TILE_EVERY_S, times)
         prev: dict[int, np.ndarray] = {}  # track id -> its mask in the previous frame
         for t, img in log.track(rd.frames(max_side=WORK_SIDE), f"track {cam.name} (pose)", total=len(times)):
             ti = int(np.argmin(np.abs(times - t)))
-            # candidates: every track's followed ROI (its last good one while missed), then the
-            # detections, but not those of a person whose followed ROI found them alone (the landmark
-            # model would only find them again); near a lost track, or where two ROIs find one body
-            # (a person passing behind another), every detection is read: its fresh ROI can find the
-            # hidden one that the followed ROI lost
-            res = est.landmarks(img, np.array([tr.roi for tr in tracks]).reshape(-1, 4),
-                                masks=self._keep_masks(tracks, prev, W, H))
-            det = self._detections(img, ti % tile_every == 0)
-            det = unexplained(det, *self._found_alone(tracks, res))
-            res = PoseResult.joined(res, est.landmarks(img, det))
+            det = self._detections(img, ti)
+            # candidates: every track's followed ROI (its last good one while missed) and every detection
+            rois = np.concatenate([np.array([tr.roi for tr in tracks]).reshape(-1, 4), det])
             source = np.r_[np.arange(len(tracks)), np.full(len(det), -1)]
+            keep = self._keep_masks(tracks, prev, W, H)
+            keep = (keep + [None] * len(det)) if keep is not None else None
+            res = est.landmarks(img, rois, masks=keep)
             good = np.flatnonzero(res.score >= np.where(source >= 0, MIN_FOLLOW_FLAG, MIN_POSE_FLAG))
             # the same skeleton found twice: keep the best-scoring candidate
             cands = self._distinct(res, good[np.argsort(-res.score[good])])
@@ -417,26 +382,6 @@ class PoseBackend:
         mt, chosen = keep_tracks(mt)
         summ.update({"detected_tracks": summ["tracks"], **track_summary(mt), "kept": chosen})
         return mt, summ
-
-
-def unexplained(det_n4: np.ndarray, found_m4: np.ndarray, lost_l4: np.ndarray | None = None) -> np.ndarray:
-    """The detections (ROIs cx, cy, side, rotation) that are not a person already found this frame
-    (``found_m4``: the ROIs the followed people's points give): the centre within MATCH_SHARE of
-    the side and the side within SAME_SIDE of each other. The landmark model on such a detection
-    finds the same skeleton again (about half the tracker's landmark calls on the real lab
-    recording); a person hidden behind another has a smaller ROI and keeps theirs, and so does a
-    detection whose centre lies within a side of a lost track's last ROI (``lost_l4``)."""
-    if not len(det_n4) or not len(found_m4):
-        return det_n4
-    d = np.linalg.norm(det_n4[:, None, :2] - found_m4[None, :, :2], axis=2)
-    side = np.maximum(det_n4[:, None, 2], found_m4[None, :, 2])
-    ratio = side / np.maximum(np.minimum(det_n4[:, None, 2], found_m4[None, :, 2]), 1e-6)
-    same = (d <= MATCH_SHARE * side) & (ratio <= SAME_SIDE)
-    if lost_l4 is not None and len(lost_l4):
-        near = np.linalg.norm(det_n4[:, None, :2] - lost_l4[None, :, :2], axis=2) <= np.maximum(
-            det_n4[:, None, 2], lost_l4[None, :, 2])
-        same &= ~near.any(1)[:, None]
-    return det_n4[~same.any(1)]
 
 
 def give_up(tid_a: int, own_a, tid_b: int, own_b, prev: dict[int, np.ndarray]) -> int:
