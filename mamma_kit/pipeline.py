@@ -16,6 +16,8 @@ after its outputs, so a run killed at any point resumes where it stopped: finish
 Stage options come from capture.toml, e.g.::
 
     [settings.calibrate]   model = "radtan"   detect_fps = 10   max_views = 40   floor = true
+                           people = false   (after match, the poses of cameras the people show to be
+                           off are refined from them and the match runs again; default "auto")
     [settings.sync]        method = "auto"    (and every sync setting; see sync/*.toml)
     [settings.track]       backend = "builtin"   (sam2: sam2_checkpoint, sam2_config, chunk, device)
     [settings.keypoints]   resplit = false | 3   (rounds of touching people read again on masks re-split by their points)
@@ -47,7 +49,7 @@ from mamma_kit.core.errors import UserError
 from mamma_kit.core.workspace import STAGES, Workspace
 
 KNOWN = {
-    "calibrate": {"model", "detect_fps", "max_views", "floor", "board"},
+    "calibrate": {"model", "detect_fps", "max_views", "floor", "board", "people"},
     "track": {"backend", "sam2_checkpoint", "sam2_config", "chunk", "device", "prompts", "pictures", "people"},
     "keypoints": {"blank", "threads", "pictures", "resplit", "hands"},
     "landmarks": {"source", "weights", "arch", "batch", "device", "noise", "outliers", "seed", "threads", "hands",
@@ -111,7 +113,9 @@ def _key_facts(stage: str, res: dict) -> str:
             return f"{res.get('source')} {res.get('arch', '')}".strip()
         if stage == "match":
             persons = res.get("persons") or []
-            return f"{len(persons)} person(s), views " + ", ".join(str(p.get("views")) for p in persons)
+            refined = (res.get("poses") or {}).get("refined") or []
+            return (f"{len(persons)} person(s), views " + ", ".join(str(p.get("views")) for p in persons)
+                    + (f"; camera poses refined from the people: {', '.join(refined)}" if refined else ""))
         if stage == "fill":
             return (f"{res.get('found', 0)} of {res.get('gaps', 0)} missing person-view-frames found"
                     if "found" in res else str(res.get("reason", "")))
@@ -195,9 +199,20 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
     elif stage == "match":
         from mamma_kit.matching.stage import run_match
 
-        res = run_match(ws, lam=float(opts.get("lam", 0.05)), max_distance=float(opts.get("max_distance", 0.12)),
-                        min_affinity=float(opts.get("min_affinity", 0.25)), window_s=float(opts.get("window", 2.0)),
-                        plots=bool(opts.get("plots", True)), force=force)
+        def match(force: bool = force) -> dict:
+            return run_match(ws, lam=float(opts.get("lam", 0.05)), max_distance=float(opts.get("max_distance", 0.12)),
+                             min_affinity=float(opts.get("min_affinity", 0.25)), window_s=float(opts.get("window", 2.0)),
+                             plots=bool(opts.get("plots", True)), force=force)
+
+        res = match()
+        if _options(cap, "calibrate").get("people", "auto") != False:  # noqa: E712 - false in capture.toml
+            # the camera poses the matched people show to be off are refined (calibration/people.py;
+            # nothing changes where no camera stands out), and the people matched again on them
+            from mamma_kit.calibration.people import refine_if_off
+
+            again = {}
+            poses = refine_if_off(ws, rematch=lambda: again.update(match(force=True)), force=force)
+            res = {**(again or res), "poses": poses}
     elif stage == "fill":
         from mamma_kit.filling.stage import run_fill
 

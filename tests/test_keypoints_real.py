@@ -499,3 +499,37 @@ def test_fill_takes_no_body_a_track_of_the_view_already_has_its_skeleton_on(real
     new = [j for j, t in enumerate(fm.track_ids) if t > mt.track_ids.max()]
     taken = int(fm.present[np.ix_(cut, new)].sum()) if new else 0
     assert taken == 0, f"{taken} of the {len(cut)} frames' bodies taken from the track that has them"
+
+
+def test_the_cameras_the_people_show_off_are_refined_after_the_match(real_ws, tmp_path):
+    """calibration.people.refine_if_off, as capture-to-smplx runs it after `match`: on the lab's
+    calibration the matched people put cam01 off (it stands out against the others' points), so its
+    pose is refined, the file as it was kept, and the match asked to run again; looked at again with
+    nothing changed, the step is skipped (cached) and asks for nothing."""
+    import shutil
+
+    from mamma_kit.calibration.people import refine_if_off
+    from mamma_kit.core.calibfile import read_calibration
+    from mamma_kit.core.identities import write_identities
+    from mamma_kit.core.workspace import Workspace
+    from mamma_kit.matching.match import MatchSettings
+    from mamma_kit.matching.pairs import ViewTracks
+    from mamma_kit.matching.windows import WindowSettings, match_take
+
+    shutil.copytree(real_ws.root, tmp_path / "ws")
+    ws = Workspace(tmp_path / "ws")
+    rig, _ = read_calibration(ws.calibration)
+    views = [ViewTracks.from_keypoints(kt, rig[c], kt.frame_times)
+             for c in CAMS for kt in [KeypointTracks.load(ws.keypoints_file(c))]]
+    write_identities(ws.identities, match_take(views, None, MatchSettings(), WindowSettings()))
+    asked = []
+    res = refine_if_off(ws, rematch=lambda: asked.append("match"))
+    assert "cam01" in res["refined"] and asked == ["match"], res
+    assert (ws.root / "calibration.before-people.toml").is_file()
+    turned = {c: d["turned_deg"] for c, d in res["cameras"].items()}
+    held = [c for c in CAMS if c not in res["refined"]]
+    # a camera that does not stand out is held (it moves only with the similarity that puts the rig
+    # back in the calibration's world frame)
+    assert held and min(turned[c] for c in res["refined"]) > 2 * max(turned[c] for c in held), turned
+    again = refine_if_off(ws, rematch=lambda: asked.append("again"))
+    assert again["skipped"] and asked == ["match"]

@@ -277,3 +277,33 @@ def refine_workspace(ws, max_frames: int = MAX_FRAMES) -> dict:
     # does not calibrate again from the board on its account
     StageManifest(ws.cache_dir, "calibrate", ws.root).update_outputs([ws.calibration])
     return {"stage": "calibrate", "people": True, "output": str(ws.calibration), "before": str(before), **report}
+
+
+def refine_if_off(ws, rematch=None, force: bool = False) -> dict:
+    """capture-to-smplx's look at the camera poses after `match`: refine_workspace (it changes
+    calibration.toml only where a camera stands out), then ``rematch()`` (the match again on the
+    refined poses) if it did. Cached in .cache/poses.json by the calibration, identities and
+    keypoints it read, so a run that changed none of them does not look again. A workspace without
+    BlazePose keypoints of matched people is left alone (nothing to look with)."""
+    from mamma_kit.core.manifest import StageManifest
+
+    cams = ws.load_capture().camera_names
+    inputs = [ws.calibration, ws.identities] + [ws.keypoints_file(c) for c in cams]
+    man = StageManifest(ws.cache_dir, "poses", ws.root)
+    settings = {"off_factor": OFF_FACTOR, "max_frames": MAX_FRAMES}
+    fresh = man.check(inputs, settings)
+    if fresh.fresh and not force:
+        return {**(man.load() or {}).get("summary", {}), "skipped": True, "reason": fresh.reason}
+    if not ws.calibration.is_file() or not any(ws.keypoints_file(c).is_file() for c in cams):
+        return {"skipped": True, "reason": "no calibration or keypoints to look with", "refined": []}
+    try:
+        res = refine_workspace(ws)
+    except UserError as e:  # too few matched points: nothing to say
+        return {"skipped": True, "reason": e.message, "refined": []}
+    if res.get("before") is not None and rematch is not None:
+        rematch()
+    summary = {"refined": res.get("refined", []), "before": res.get("before"),
+               "cameras": res.get("cameras", {})}
+    man.record(inputs, settings, [ws.calibration], summary=summary)
+    return {**summary, "skipped": False}
+

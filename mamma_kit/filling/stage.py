@@ -128,7 +128,8 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
     state = manifest.check(inputs, settings)
     if state.fresh and not force and (ws.fill_dir / FILL_IDENTITIES).is_file():
         log.info("fill: up to date (inputs unchanged); skipped (--force recomputes)")
-        return {"stage": "fill", "skipped": True, "reason": state.reason, **manifest.load().get("summary", {})}
+        # the summary of the run that made the files, marked skipped (its own "skipped" is False)
+        return {**manifest.load().get("summary", {}), "stage": "fill", "skipped": True, "reason": state.reason}
     rig, _ = read_calibration(ws.calibration)
     # without timing.toml the cameras are taken as synchronised, as the match and the fit take them
     clocks = read_timing(ws.timing)[0] if ws.timing.is_file() else {c: ClockModel() for c in cams}
