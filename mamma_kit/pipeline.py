@@ -205,7 +205,7 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
                              plots=bool(opts.get("plots", True)), force=force)
 
         res = match()
-        if _options(cap, "calibrate").get("people", "auto") != False:  # noqa: E712 - false in capture.toml
+        if _options(cap, "calibrate").get("people", "auto") is not False:  # people = false in capture.toml
             # the camera poses the matched people show to be off are refined (calibration/people.py;
             # nothing changes where no camera stands out), and the people matched again on them
             from mamma_kit.calibration.people import refine_if_off

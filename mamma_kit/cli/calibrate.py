@@ -38,10 +38,10 @@ def calibrate_cmd(
     max_views: int = typer.Option(40, "--max-views", help="Views per camera used for its intrinsics."),
     no_floor: bool = typer.Option(False, "--no-floor", help="Do not look for the board on the floor."),
     force: bool = typer.Option(False, "--force", help="Workspace: recalibrate even if nothing changed."),
-    people: bool = typer.Option(False, "--people", help="Workspace, after `match`: refine every camera's pose "
-                                "in calibration.toml from the matched people's keypoints (a bundle adjustment; "
-                                "the file as it was kept as calibration.before-people.toml); then run the "
-                                "stages from `match` again."),
+    people: bool = typer.Option(False, "--people", help="Workspace, after `match`: refine the poses of the cameras "
+                                "the matched people show to be off, in calibration.toml, from their keypoints (a "
+                                "bundle adjustment; the file as it was kept as calibration.before-people.toml); "
+                                "then run the stages from `match` again. capture-to-smplx does this itself."),
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
