@@ -32,7 +32,7 @@ prior, temporal and extra (contact) at the final robust scale: what each energy 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -567,6 +567,20 @@ class GaussNewton:
             if extra is not None:
                 tot_after += Ec_new if bool(acc_p.all()) else Ec_cur
         return acc, ok_b, E_after, tot_after
+
+    def landmarks(self, rows: np.ndarray, kin: BodyKinematics) -> "GaussNewton":
+        """The same problem at landmarks ``rows`` only (``kin``: this one's kinematics at those
+        points, e.g. ``self.kin.subset(rows)``), with this one's robust scales (a wide start spans
+        the person's whole height, not the rows')."""
+        r = torch.as_tensor(rows)
+        lw = self.cfg.landmark_weight
+        cfg = replace(self.cfg, wide_frac=0.0, landmark_weight=None if lw is None else lw[r])
+        sub = GaussNewton(kin, self.cams, Obs(self.obs.xy[..., r, :], self.obs.sigma[..., r, :], self.obs.w[..., r]),
+                          cfg, self.points)
+        sub.gamma0 = self.gamma0[..., r] if torch.is_tensor(self.gamma0) else self.gamma0
+        if self.points is not None:
+            sub.p_gamma0 = self.p_gamma0
+        return sub
 
     def run(self, st: State, report: GNReport | None = None) -> tuple[State, torch.Tensor]:
         """Levenberg-Marquardt from ``st`` (not changed): per iteration linearise, factor the

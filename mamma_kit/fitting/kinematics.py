@@ -191,6 +191,7 @@ class BodyKinematics:
         self.coef_sum = self.coef.sum(-1)  # (N, M)
         self.part = np.asarray(model.vertex_part)[self.ids]
         self._groups: dict = {}
+        self._subsets: dict = {}
         # joints as points: joint j moves with every strict ancestor's rotation (lever p_j - p_i)
         anc = [np.flatnonzero(sub[:, j] & (np.arange(J) != j)) for j in range(J)]
         Mj = max(len(a) for a in anc)
@@ -199,6 +200,15 @@ class BodyKinematics:
         self.f32 = {k: c(getattr(self, k)) for k in ("v_template", "shapedirs", "posedirs", "skin_w", "W",
                                                      "J_template", "J_shapedirs", "coef", "coef_sum",
                                                      "anc_noroot")}
+
+    def subset(self, rows: np.ndarray) -> "BodyKinematics":
+        """This kinematics at its points ``rows`` only (a vertex set: not regressed points), cached:
+        a problem that reads a few points (one limb's) pays for those alone."""
+        key = np.asarray(rows, np.int64).tobytes()
+        if key not in self._subsets:
+            assert not self.per_slot, "regressed points have no subset"
+            self._subsets[key] = BodyKinematics(self.model, self.ids[np.asarray(rows, np.int64)])
+        return self._subsets[key]
 
     # ---- shape ------------------------------------------------------------------------
     def rest(self, betas: torch.Tensor, dtype=DTYPE) -> tuple[torch.Tensor, torch.Tensor]:

@@ -49,13 +49,13 @@ def repose_limbs(kin: BodyKinematics, cams: RigTensors, obs: Obs, st: State, X: 
         below = np.flatnonzero(kin.sub[w] & (np.arange(kin.J) != w))
         js = np.r_[w, below]
         chain = np.flatnonzero(kin.sub[w])
-        lm = torch.as_tensor(np.isin(W.argmax(1), chain), dtype=torch.float32)
+        rows = np.flatnonzero(np.isin(W.argmax(1), chain))  # the chain's landmarks
         pts = None
         if points is not None:  # the chain's keypoints (elbow, wrist, hand points) judge it too
             pts = points.with_weight(torch.as_tensor(np.isin(points.kin.W.numpy().argmax(1), chain),
                                                      dtype=torch.float32))
-        gn = GaussNewton(kin, cams, obs, GNConfig(active=(0,), landmark_weight=lm, gamma_start=gamma,
-                                                  wide_frac=compare_frac), pts)
+        gn = GaussNewton(kin, cams, obs, GNConfig(active=(0,), gamma_start=gamma, wide_frac=compare_frac),
+                         pts).landmarks(rows, kin.subset(rows))
         e_cur = _chain_energy(gn, out)
         if w in finit.HAND_WRISTS:
             R, ok = finit.hand_orientations(v0.numpy(), J0.numpy(), X, info, finit.palm_landmarks(W, w), w)
