@@ -297,8 +297,10 @@ class DenseHead(nn.Module):
         else:
             self.logits = nn.Linear(cfg.dim, cfg.n_landmarks)
         # cell centres in normalised crop units: cell c spans input px [c p - pad, (c + 1) p - pad)
-        cx = ((torch.arange(gw) + 0.5) * p - pad) / w * 2 - 1
-        cy = ((torch.arange(gh) + 0.5) * p - pad) / h * 2 - 1
+        # on the CPU even where the model is built on the meta device (weights.load_model): the
+        # checkpoint does not hold these
+        cx = ((torch.arange(gw, device="cpu") + 0.5) * p - pad) / w * 2 - 1
+        cy = ((torch.arange(gh, device="cpu") + 0.5) * p - pad) / h * 2 - 1
         yy, xx = torch.meshgrid(cy, cx, indexing="ij")
         self.register_buffer("centres_n2", torch.stack([xx, yy], -1).reshape(-1, 2), persistent=False)
 
@@ -386,7 +388,7 @@ class SampledHead(nn.Module):
         self.embed = nn.Embedding(L, C)
         gh, gw = cfg.grid_hw
         # the 3 x 3 sampling grid, one fine cell (half a token) apart, in normalised units
-        d = torch.tensor([-1.0, 0.0, 1.0])
+        d = torch.tensor([-1.0, 0.0, 1.0], device="cpu")  # built on the CPU, as centres_n2
         yy, xx = torch.meshgrid(d / gh, d / gw, indexing="ij")
         self.register_buffer("grid_k2", torch.stack([xx, yy], -1).reshape(-1, 2), persistent=False)
         n_in = 9 * C + 2 * C + 2
