@@ -26,7 +26,6 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 MIN_IOU, MIN_VISIBLE = 0.25, 0.25
 
@@ -35,26 +34,17 @@ def coverage(ws, cam: str):
     """Per gt frame of ``cam``: the pred track column covering each gt person (-1 none), and which
     gt persons the camera sees; with the files they came from."""
     from mamma_kit.core.tracks import LandmarkTracks, MaskTracks
-    from mamma_kit.evaluation.masks import compare_camera, pair_frames
+    from mamma_kit.evaluation.identities import camera_pairing
+    from mamma_kit.evaluation.masks import pair_frames
 
     pred, gt = MaskTracks.load(ws.mask_file(cam)), MaskTracks.load(ws.gt_dir / "masks" / f"{cam}.npz")
-    e = compare_camera(pred, gt)
+    e, tg, seen_tp, on_tk = camera_pairing(ws, cam, pred, MIN_VISIBLE, MIN_IOU)
+    on_tp = np.full(seen_tp.shape, -1, np.int64)  # the track column on each gt person
+    t_i, k_i = np.nonzero(on_tk >= 0)
+    on_tp[t_i, on_tk[t_i, k_i]] = k_i
     lt = LandmarkTracks.load(ws.gt_dir / "landmarks" / f"{cam}.npz")
-    tg = pair_frames(gt.frame_times, pred.frame_times)
     lt_gt = pair_frames(gt.frame_times, lt.frame_times)
-    T, P = len(gt.frame_times), len(gt.track_ids)
-    present = np.where(tg[:, None] >= 0, pred.present[np.clip(tg, 0, None)], False)
-    on_tp = np.full((T, P), -1, np.int64)
-    seen_tp = np.zeros((T, P), bool)
     cols = [list(lt.track_ids).index(g) for g in gt.track_ids]
-    for t in range(T):
-        iou = np.where(present[t][:, None], e.iou_tkp[t], 0.0)
-        if iou.size and iou.max() >= MIN_IOU:
-            r, cc = linear_sum_assignment(-iou)
-            ok = iou[r, cc] >= MIN_IOU
-            on_tp[t, cc[ok]] = r[ok]
-        if lt_gt[t] >= 0:
-            seen_tp[t] = (lt.visibility[lt_gt[t], cols] > 0.5).mean(1) >= MIN_VISIBLE
     return {"pred": pred, "gt": gt, "lt": lt, "tg": tg, "lt_gt": lt_gt, "cols": cols, "on": on_tp,
             "seen": seen_tp, "iou": e.iou_tkp}
 

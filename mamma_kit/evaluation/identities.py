@@ -75,6 +75,36 @@ def evaluate(ws: Workspace) -> dict | None:
     return score(ident, track_gt_persons(ws, ident.cameras))
 
 
+def camera_pairing(ws: Workspace, cam: str, pred: MaskTracks, min_visible: float = 0.25, min_iou: float = 0.25):
+    """One camera's tracks ``pred`` against its gt persons, per gt frame: returns the mask comparison
+    (evaluation.masks.compare_camera), each gt frame's pred frame (-1: none), ``seen_tp`` (T_gt, P)
+    the gt persons the camera sees (at least ``min_visible`` of their surface landmarks visible) and
+    ``on_tk`` (T_gt, K) the gt column each track is on, one-to-one per frame by mask IoU (Hungarian,
+    IoU >= ``min_iou``; -1: none)."""
+    from mamma_kit.evaluation.masks import compare_camera, pair_frames
+
+    gt = MaskTracks.load(ws.gt_dir / "masks" / f"{cam}.npz")
+    e = compare_camera(pred, gt)
+    lt = LandmarkTracks.load(ws.gt_dir / "landmarks" / f"{cam}.npz")
+    tg = pair_frames(gt.frame_times, pred.frame_times)  # gt frame -> pred frame
+    present_tk = np.where(tg[:, None] >= 0, pred.present[np.clip(tg, 0, None)], False)
+    lt_gt = pair_frames(gt.frame_times, lt.frame_times)
+    T, P = len(gt.frame_times), len(gt.track_ids)
+    seen_tp = np.zeros((T, P), bool)
+    for j, g in enumerate(gt.track_ids):
+        col = list(lt.track_ids).index(g)
+        vis = np.where(lt_gt[:, None] >= 0, lt.visibility[np.clip(lt_gt, 0, None), col], 0.0)
+        seen_tp[:, j] = (vis > 0.5).mean(1) >= min_visible
+    on_tk = np.full(present_tk.shape, -1, np.int64)
+    for t in range(T):
+        iou = np.where(present_tk[t][:, None], e.iou_tkp[t], 0.0)
+        if iou.size and iou.max() >= min_iou:
+            r, cc = linear_sum_assignment(-iou)
+            ok = iou[r, cc] >= min_iou
+            on_tk[t, r[ok]] = cc[ok]
+    return e, tg, seen_tp, on_tk
+
+
 def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: float = 0.25,
                  min_iou: float = 0.25, fill: bool = True) -> dict:
     """Identities per frame against ground truth, as a user sees them. Per camera and frame, tracks
@@ -92,41 +122,21 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
     - ``false_tracks``: tracks given a person that are on no gt person in most of those frames (an
       object, or a second track on someone's body);
     - ``tracks_on_nothing``: the tracker's tracks on no gt person in most of their frames;
+    - ``person_to_gt``: the one-to-one map of person ids to gt persons the scores use;
     - ``missed_persons`` / ``extra_persons``: gt persons without a person id, person ids without a
       gt person. ``clocks``: camera -> ClockModel (camera time -> reference time) that match used.
     ``fill``: each view's tracks with those `mamma-kit fill` added (core.filled; pass the identities
     that name them), or the tracker's alone.
     """
-    from mamma_kit.evaluation.masks import compare_camera, pair_frames
-
     per_cam = {}
     for c in ident.cameras:
-        gt_path = ws.gt_dir / "masks" / f"{c}.npz"
-        if not (ws.mask_file(c).is_file() and gt_path.is_file()):
+        if not (ws.mask_file(c).is_file() and (ws.gt_dir / "masks" / f"{c}.npz").is_file()):
             continue
         pred = load_masks(ws, c) if fill else MaskTracks.load(ws.mask_file(c))
-        gt = MaskTracks.load(gt_path)
-        e = compare_camera(pred, gt)
-        lt = LandmarkTracks.load(ws.gt_dir / "landmarks" / f"{c}.npz")
-        tg = pair_frames(gt.frame_times, pred.frame_times)  # gt frame -> pred frame
+        e, tg, seen_tp, on_tk = camera_pairing(ws, c, pred, min_visible, min_iou)
         pid_tk = ident.person_frames(c, pred.track_ids, clocks[c].to_ref(pred.frame_times))
         pid_tk = np.where(tg[:, None] >= 0, pid_tk[np.clip(tg, 0, None)], -1)  # (T_gt, K)
         present_tk = np.where(tg[:, None] >= 0, pred.present[np.clip(tg, 0, None)], False)
-        lt_gt = pair_frames(gt.frame_times, lt.frame_times)
-        T, P = len(gt.frame_times), len(gt.track_ids)
-        seen_tp = np.zeros((T, P), bool)
-        for j, g in enumerate(gt.track_ids):
-            col = list(lt.track_ids).index(g)
-            vis = np.where(lt_gt[:, None] >= 0, lt.visibility[np.clip(lt_gt, 0, None), col], 0.0)
-            seen_tp[:, j] = (vis > 0.5).mean(1) >= min_visible
-        # one-to-one per frame: which track is on which gt person
-        on_tk = np.full(present_tk.shape, -1, np.int64)  # gt column each track is paired with
-        for t in range(T):
-            iou = np.where(present_tk[t][:, None], e.iou_tkp[t], 0.0)
-            if iou.size and iou.max() >= min_iou:
-                r, cc = linear_sum_assignment(-iou)
-                ok = iou[r, cc] >= min_iou
-                on_tk[t, r[ok]] = cc[ok]
         per_cam[c] = (e, pid_tk, present_tk, seen_tp, on_tk, pred.track_ids)
     gts = sorted({int(g) for e, *_ in per_cam.values() for g in e.gt_ids})
     pids = ident.person_ids
@@ -182,6 +192,7 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
             "wrong": round(n_wrong / n_seen, 4) if n_seen else None,
             "person_view_frames": n_seen, "switches": switches, "switch_events": switch_events,
             "false_tracks": false_tracks, "tracks_on_nothing": on_nothing,
+            "person_to_gt": {int(p): int(g) for p, g in to_gt.items()},
             "missed_persons": [g for g in gts if g not in to_gt.values()],
             "extra_persons": [p for p in pids if p not in to_gt],
             "persons": len(pids), "gt_persons": len(gts),
