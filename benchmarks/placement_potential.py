@@ -10,7 +10,8 @@ it that camera sees. Printed per capture: the seen person-view-frames no track c
 fitted body's visible silhouette overlaps at IoU >= 0.25 (what the score needs), and how many of
 those belong to the fitted person the score maps to that gt person, with the matched share that
 placing them would give; and a rule a stage could apply without the truth (a fitted person with no
-track in a view at an instant, a quarter or more of whose silhouette that view sees, placed there):
+track in a view at an instant, a quarter or more of whose silhouette that view sees while two other
+views follow them, placed there):
 how many of its placements land on their own gt person (IoU >= 0.25) and how many do not. The
 potential of a design, not a stage of the kit.
 
@@ -27,6 +28,7 @@ import numpy as np
 
 SPLAT_PX = 2  # vertex splat radius: the open body's vertices lie 1-3 px apart at these sizes
 RULE_SHARE = 0.25  # the rule: a person is placed where the view sees this share of their silhouette
+RULE_VIEWS = 2  # ... while this many other views follow them
 
 
 def label_map(cam, bodies: list, t_ref: float, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
@@ -43,7 +45,8 @@ def label_map(cam, bodies: list, t_ref: float, H: int, W: int) -> tuple[np.ndarr
         z = cam.to_camera(verts[k])[:, 2]
         uv = cam.project(verts[k])
         ok = np.isfinite(uv).all(1) & (z > 0)
-        u0, v0, z = np.round(uv[ok, 0]).astype(int), np.round(uv[ok, 1]).astype(int), z[ok]
+        uv = np.clip(uv[ok], -1e6, 1e6)  # far outside the image: no int overflow
+        u0, v0, z = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int), z[ok]
         shape = (len(u0), len(offs), len(offs))
         u = np.broadcast_to(u0[:, None, None] + offs[None, :, None], shape).ravel()
         v = np.broadcast_to(v0[:, None, None] + offs[None, None, :], shape).ravel()
@@ -82,8 +85,17 @@ def potential(ws_path: Path) -> dict:
     close = np.ones((5, 5), np.uint8)
     ident = load_identities(ws)
     to_gt = scores["person_to_gt"]
+    cams = ws.load_capture().camera_names
+    # per camera and person: the reference times at which one of its tracks there is present
+    seen_at: dict[tuple[str, int], np.ndarray] = {}
+    for c in cams:
+        mt = load_masks(ws, c)
+        t_ref = clocks[c].to_ref(mt.frame_times)
+        p_tk = ident.person_frames(c, mt.track_ids, t_ref)
+        for p in pids:
+            seen_at[c, p] = t_ref[((p_tk == p) & mt.present).any(1)]
     missed = placed = right = rule_true = rule_false = 0
-    for c in ws.load_capture().camera_names:
+    for c in cams:
         pred = load_masks(ws, c)
         _, tg, seen_tp, on_tk = camera_pairing(ws, c, pred)
         gt = MaskTracks.load(ws.gt_dir / "masks" / f"{c}.npz")
@@ -94,7 +106,8 @@ def potential(ws_path: Path) -> dict:
         t_i, k_i = np.nonzero(on_tk >= 0)
         covered[t_i, on_tk[t_i, k_i]] = True
         for t in range(len(gt.frame_times)):
-            lab, alone = label_map(rig[c], bodies, float(clocks[c].to_ref(gt.frame_times[t:t + 1])[0]), H, W)
+            t_ref = float(clocks[c].to_ref(gt.frame_times[t:t + 1])[0])
+            lab, alone = label_map(rig[c], bodies, t_ref, H, W)
             sil = [cv2.morphologyEx((lab == b).astype(np.uint8), cv2.MORPH_CLOSE, close).astype(bool)
                    for b in range(len(bodies))]
             for j in np.flatnonzero(seen_tp[t] & ~covered[t]):
@@ -109,6 +122,12 @@ def potential(ws_path: Path) -> dict:
             tracked = set(pid_tk[tg[t], pred.present[tg[t]]].tolist()) if tg[t] >= 0 else set()
             for b, s in enumerate(sil):
                 if pids[b] in tracked or alone[b] == 0 or (lab == b).sum() < RULE_SHARE * alone[b]:
+                    continue
+                # ... and two other views follow the person then (the fit holds a body where no view
+                # does, e.g. behind a wall: it is not placed)
+                views = sum(bool(len(seen_at[o, pids[b]]) and np.abs(seen_at[o, pids[b]] - t_ref).min() < 0.05)
+                            for o in cams if o != c)
+                if views < RULE_VIEWS:
                     continue
                 j = gcol.get(to_gt.get(pids[b], -1), -1)
                 ok = j >= 0 and gt.present[t, j] and (s & gt.mask(t, j)).sum() / max((s | gt.mask(t, j)).sum(), 1) >= 0.25
