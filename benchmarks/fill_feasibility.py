@@ -38,7 +38,7 @@ def coverage(ws, cam: str):
     from mamma_kit.evaluation.masks import pair_frames
 
     pred, gt = MaskTracks.load(ws.mask_file(cam)), MaskTracks.load(ws.gt_dir / "masks" / f"{cam}.npz")
-    e, tg, seen_tp, on_tk = camera_pairing(ws, cam, pred, MIN_VISIBLE, MIN_IOU)
+    e, tg, _, seen_tp, on_tk = camera_pairing(ws, cam, pred, MIN_VISIBLE, MIN_IOU)
     on_tp = np.full(seen_tp.shape, -1, np.int64)  # the track column on each gt person
     t_i, k_i = np.nonzero(on_tk >= 0)
     on_tp[t_i, on_tk[t_i, k_i]] = k_i

@@ -97,7 +97,7 @@ def potential(ws_path: Path) -> dict:
     missed = placed = right = rule_true = rule_false = 0
     for c in cams:
         pred = load_masks(ws, c)
-        _, tg, seen_tp, on_tk = camera_pairing(ws, c, pred)
+        _, tg, _, seen_tp, on_tk = camera_pairing(ws, c, pred)
         gt = MaskTracks.load(ws.gt_dir / "masks" / f"{c}.npz")
         gcol = {int(g): j for j, g in enumerate(gt.track_ids)}
         pid_tk = ident.person_frames(c, pred.track_ids, clocks[c].to_ref(pred.frame_times))

@@ -77,7 +77,8 @@ def evaluate(ws: Workspace) -> dict | None:
 
 def camera_pairing(ws: Workspace, cam: str, pred: MaskTracks, min_visible: float = 0.25, min_iou: float = 0.25):
     """One camera's tracks ``pred`` against its gt persons, per gt frame: returns the mask comparison
-    (evaluation.masks.compare_camera), each gt frame's pred frame (-1: none), ``seen_tp`` (T_gt, P)
+    (evaluation.masks.compare_camera), each gt frame's pred frame (-1: none), ``present_tk`` (T_gt, K)
+    the tracks present at each gt frame, ``seen_tp`` (T_gt, P)
     the gt persons the camera sees (at least ``min_visible`` of their surface landmarks visible) and
     ``on_tk`` (T_gt, K) the gt column each track is on, one-to-one per frame by mask IoU (Hungarian,
     IoU >= ``min_iou``; -1: none)."""
@@ -102,7 +103,7 @@ def camera_pairing(ws: Workspace, cam: str, pred: MaskTracks, min_visible: float
             r, cc = linear_sum_assignment(-iou)
             ok = iou[r, cc] >= min_iou
             on_tk[t, r[ok]] = cc[ok]
-    return e, tg, seen_tp, on_tk
+    return e, tg, present_tk, seen_tp, on_tk
 
 
 def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: float = 0.25,
@@ -133,10 +134,9 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
         if not (ws.mask_file(c).is_file() and (ws.gt_dir / "masks" / f"{c}.npz").is_file()):
             continue
         pred = load_masks(ws, c) if fill else MaskTracks.load(ws.mask_file(c))
-        e, tg, seen_tp, on_tk = camera_pairing(ws, c, pred, min_visible, min_iou)
+        e, tg, present_tk, seen_tp, on_tk = camera_pairing(ws, c, pred, min_visible, min_iou)
         pid_tk = ident.person_frames(c, pred.track_ids, clocks[c].to_ref(pred.frame_times))
         pid_tk = np.where(tg[:, None] >= 0, pid_tk[np.clip(tg, 0, None)], -1)  # (T_gt, K)
-        present_tk = np.where(tg[:, None] >= 0, pred.present[np.clip(tg, 0, None)], False)
         per_cam[c] = (e, pid_tk, present_tk, seen_tp, on_tk, pred.track_ids)
     gts = sorted({int(g) for e, *_ in per_cam.values() for g in e.gt_ids})
     pids = ident.person_ids

@@ -568,15 +568,16 @@ class GaussNewton:
                 tot_after += Ec_new if bool(acc_p.all()) else Ec_cur
         return acc, ok_b, E_after, tot_after
 
-    def landmarks(self, rows: np.ndarray, kin: BodyKinematics) -> "GaussNewton":
+    def landmarks(self, rows: np.ndarray, kin: BodyKinematics, points: PointSet | None = None) -> "GaussNewton":
         """The same problem at landmarks ``rows`` only (``kin``: this one's kinematics at those
         points, e.g. ``self.kin.subset(rows)``), with this one's robust scales (a wide start spans
-        the person's whole height, not the rows')."""
+        the person's whole height, not the rows'). ``points``: this one's point set reweighted
+        (PointSet.with_weight; its robust scales are this one's too), else this one's."""
         r = torch.as_tensor(rows)
         lw = self.cfg.landmark_weight
         cfg = replace(self.cfg, wide_frac=0.0, landmark_weight=None if lw is None else lw[r])
         sub = GaussNewton(kin, self.cams, Obs(self.obs.xy[..., r, :], self.obs.sigma[..., r, :], self.obs.w[..., r]),
-                          cfg, self.points)
+                          cfg, self.points if points is None else points)
         sub.gamma0 = self.gamma0[..., r] if torch.is_tensor(self.gamma0) else self.gamma0
         if self.points is not None:
             sub.p_gamma0 = self.p_gamma0

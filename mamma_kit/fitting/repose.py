@@ -45,6 +45,8 @@ def repose_limbs(kin: BodyKinematics, cams: RigTensors, obs: Obs, st: State, X: 
     out = st.clone()
     taken = {"palm": 0.0, "neighbour": 0.0}
     roots = ARM_ROOTS + finit.HAND_WRISTS + FINGER_ROOTS
+    # the whole body's problem, once: each chain's is its landmarks of it (GaussNewton.landmarks)
+    whole = GaussNewton(kin, cams, obs, GNConfig(active=(0,), gamma_start=gamma, wide_frac=compare_frac), points)
     for w in roots:
         below = np.flatnonzero(kin.sub[w] & (np.arange(kin.J) != w))
         js = np.r_[w, below]
@@ -54,8 +56,7 @@ def repose_limbs(kin: BodyKinematics, cams: RigTensors, obs: Obs, st: State, X: 
         if points is not None:  # the chain's keypoints (elbow, wrist, hand points) judge it too
             pts = points.with_weight(torch.as_tensor(np.isin(points.kin.W.numpy().argmax(1), chain),
                                                      dtype=torch.float32))
-        gn = GaussNewton(kin, cams, obs, GNConfig(active=(0,), gamma_start=gamma, wide_frac=compare_frac),
-                         pts).landmarks(rows, kin.subset(rows))
+        gn = whole.landmarks(rows, kin.subset(rows), pts)
         e_cur = _chain_energy(gn, out)
         if w in finit.HAND_WRISTS:
             R, ok = finit.hand_orientations(v0.numpy(), J0.numpy(), X, info, finit.palm_landmarks(W, w), w)
