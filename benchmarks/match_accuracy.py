@@ -27,8 +27,11 @@ extra persons.
 
     nice -n 10 python benchmarks/match_accuracy.py --root /work/bench/ident --chain
 
-``--from match`` runs the match and the fill again on the tracks, keypoints and landmarks an earlier
-run left in --root (what a change to the matching needs).
+The chain goes on through `mamma-kit fit` and `mamma-kit place` (the fitted bodies placed in the
+views that lost them); the scores are of every track then, with those before the placement and
+before the fill beside them. ``--from match`` runs the match and the stages after it again on the
+tracks, keypoints and landmarks an earlier run left in --root (what a change to the matching needs);
+``--from place`` only the placement, on the fit there.
 """
 
 from __future__ import annotations
@@ -122,7 +125,7 @@ def run_case(ws_path: Path, cams: list[str], seed: int, builtin: bool) -> dict:
 
 
 # (recipe, folder, frames or None for the recipe's duration, render scale, seed or None)
-STAGES = ("track", "keypoints", "landmarks", "match", "fill")
+STAGES = ("track", "keypoints", "landmarks", "match", "fill", "fit", "place")
 CHAIN_CASES = [("crowd-6", "crowd6_seed0", 60, 0.5, 0), ("crowd-6", "crowd6_seed11", 60, 0.5, 11),
                ("crowd-6", "crowd6_seed23", 60, 0.5, 23), ("room-wander", "room_wander", None, 0.5, None),
                # the same room for half as long: peak memory must not grow with the take
@@ -168,10 +171,13 @@ def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed,
     for stage in STAGES[STAGES.index(first):]:
         secs[stage], peak_mb[stage] = run_measured(stage, ws_path)
     clocks, _ = read_timing(ws.timing)
-    r = frame_scores(ws, load_identities(ws), clocks)
-    # the match's own identities on the tracker's tracks (before the fill), for comparison
+    r = frame_scores(ws, load_identities(ws, placed=True), clocks, placed=True)
+    # before the placement (the tracker's and the fill's tracks), and the match's own identities on
+    # the tracker's tracks (before the fill), for comparison
+    keys = ("matched", "tracked", "wrong", "switches", "false_tracks")
+    r["before_place"] = {k: v for k, v in frame_scores(ws, load_identities(ws), clocks).items() if k in keys}
     r["before_fill"] = {k: v for k, v in frame_scores(ws, read_identities(ws.identities), clocks, fill=False).items()
-                        if k in ("matched", "tracked", "wrong", "switches", "false_tracks")}
+                        if k in keys}
     cams = ws.load_capture().camera_names
     r["tracks"] = sum(len(MaskTracks.load(ws.mask_file(c)).track_ids) for c in cams)
     r["seconds"] = secs
@@ -183,7 +189,7 @@ def chain_case(root: Path, recipe: str, folder: str, frames, scale: float, seed,
 def main_chain(args) -> None:
     rows = []
     print(f"{'capture':22s} {'cams':>4s} {'tracks':>6s} {'on nobody':>9s} {'persons':>7s} {'matched':>8s} "
-          f"{'wrong':>6s} {'switches':>8s} {'false':>5s} {'missed':>6s}  seconds (track/keypoints/landmarks/match/fill)")
+          f"{'wrong':>6s} {'switches':>8s} {'false':>5s} {'missed':>6s}  seconds (track/keypoints/landmarks/match/fill/fit/place)")
     for recipe, folder, frames, scale, seed in CHAIN_CASES:
         if args.case and folder not in args.case:
             continue
@@ -194,12 +200,13 @@ def main_chain(args) -> None:
         print(f"{name:22s} {r['cameras']:4d} {r['tracks']:6d} {len(r['tracks_on_nothing']):9d} "
               f"{r['persons']:3d}/{r['gt_persons']:<3d} {100 * r['matched']:7.1f}% {100 * r['wrong']:5.1f}% "
               f"{r['switches']:8d} {len(r['false_tracks']):5d} {len(r['missed_persons']):6d}  "
-              f"{s['track']}/{s['keypoints']}/{s['landmarks']}/{s['match']}/{s['fill']}", flush=True)
-        b = r["before_fill"]
-        print(f"    before the fill (the tracker's tracks): matched {100 * b['matched']:.1f}%, tracked "
-              f"{100 * b['tracked']:.1f}%, wrong {100 * b['wrong']:.1f}%, switches {b['switches']}, "
-              f"false {len(b['false_tracks'])}", flush=True)
-        print("    peak memory MB (track/keypoints/landmarks/match/fill): "
+              + "/".join(str(s[k]) for k in STAGES), flush=True)
+        for key, what in (("before_place", "before the placement (the tracker's and the fill's tracks)"),
+                          ("before_fill", "before the fill (the tracker's tracks)")):
+            b = r[key]
+            print(f"    {what}: matched {100 * b['matched']:.1f}%, tracked {100 * b['tracked']:.1f}%, wrong "
+                  f"{100 * b['wrong']:.1f}%, switches {b['switches']}, false {len(b['false_tracks'])}", flush=True)
+        print("    peak memory MB (track/keypoints/landmarks/match/fill/fit/place): "
               + "/".join(f"{r['peak_rss_mb'][k]:.0f}" if k in r["peak_rss_mb"] else "-" for k in STAGES), flush=True)
         print(f"    matched per person {r['matched_per_person']}; false tracks {r['false_tracks']}; "
               f"tracks on nobody {r['tracks_on_nothing']}", flush=True)

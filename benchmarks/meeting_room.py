@@ -7,7 +7,7 @@ its raw files, against its real 3D mouth ground truth.
    R, t = K^-1 Pmat (scaled to a unit third row; Pmat is the projection of undistorted points).
    Checked against the recording's 2D head annotations (posGT) through the lens model.
 2. `mamma-kit init ROOT/ws --videos cam1.avi cam2.avi cam3.avi --calibration ...` (and `--people N`
-   when given), then `mamma-kit capture-to-smplx ROOT/ws --to fit`: the cameras start at
+   when given), then `mamma-kit capture-to-smplx ROOT/ws --to place`: the cameras start at
    different moments, and sync finds their offsets from the audio.
 3. Printed: the sync offsets against the timecode difference; per camera the tracks kept; the
    match's persons and the views each holds; per ground-truth person, which fitted persons follow
@@ -167,24 +167,31 @@ def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.n
 
     from mamma_kit.core.filled import load_keypoints, load_masks
 
-    # each view's tracks with those `mamma-kit fill` added, as the fit reads them
-    kt, mt = load_keypoints(ws, cam), load_masks(ws, cam)
+    # each view's tracks with those `mamma-kit fill` and `mamma-kit place` added (the placed ones
+    # have masks only: their boxes say who they are)
+    kt, mt = load_keypoints(ws, cam), load_masks(ws, cam, placed=True)
     times_g, truth = truth_mouths()
     t_ref = clocks[cam].to_ref(kt.frame_times)
     c = rig[cam]
     g = np.clip(np.searchsorted(times_g, t_ref - 0.5 / FPS), 0, len(times_g) - 1)
     near = np.abs(times_g[g] - t_ref) < 0.5 / FPS
     proj = np.stack([cv2.projectPoints(x, cv2.Rodrigues(c.R)[0], c.t, c.K, c.dist)[0][:, 0] for x in truth.values()])
-    label = np.full(kt.valid.shape, -1)
-    col = {int(t): k for k, t in enumerate(mt.track_ids)}
-    for k in range(kt.valid.shape[1]):
-        f = np.flatnonzero(kt.valid[:, k] & near)
-        nose = kt.xy[f, k, 0]
-        h = np.maximum(np.nanmax(kt.xy[f, k, :, 1], -1) - np.nanmin(kt.xy[f, k, :, 1], -1), 60.0)
-        d = np.linalg.norm(proj[:, g[f]] - nose[None], axis=-1)  # (2, n)
-        best = np.argmin(d, 0)
-        lab = np.where(d[best, np.arange(len(f))] < np.maximum(0.25 * h, 15), best, -1)
-        b = mt.boxes[f, col[int(kt.track_ids[k])]]  # (n, 4) x0 y0 x1 y1
+    label = np.full(mt.present.shape, -1)
+    present = mt.present.copy()
+    kcol = {int(t): k for k, t in enumerate(kt.track_ids)}
+    for k, tid in enumerate(mt.track_ids):
+        kk = kcol.get(int(tid))
+        if kk is not None:
+            present[:, k] = kt.valid[:, kk]
+        f = np.flatnonzero(present[:, k] & near)
+        lab = np.full(len(f), -1)
+        if kk is not None:
+            nose = kt.xy[f, kk, 0]
+            h = np.maximum(np.nanmax(kt.xy[f, kk, :, 1], -1) - np.nanmin(kt.xy[f, kk, :, 1], -1), 60.0)
+            d = np.linalg.norm(proj[:, g[f]] - nose[None], axis=-1)  # (2, n)
+            best = np.argmin(d, 0)
+            lab = np.where(d[best, np.arange(len(f))] < np.maximum(0.25 * h, 15), best, -1)
+        b = mt.boxes[f, k]  # (n, 4) x0 y0 x1 y1
         bw, bh = b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]
         m = proj[:, g[f]]  # (2, n, 2)
         inside = (m[..., 0] > b[:, 0] - 0.1 * bw) & (m[..., 0] < b[:, 2] + 0.1 * bw) & \
@@ -200,21 +207,21 @@ def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.n
         inside = {int(f) - 1 for f, x, y in pos[:, :3] if 0 < x < W and 0 < y < H}
         seen[:, j] = [k in inside for k in range(len(kt.frame_times))]
     seen &= near[:, None]
-    return label, kt.track_ids, seen
+    return label, mt.track_ids, present, seen
 
 
 def identity_figures(ws, rig, clocks, ident) -> dict:
     """Per camera: the person-frames the recording annotates that some assigned track follows
     (with the right identity), and tracks or frames on no one."""
-    from mamma_kit.core.filled import load_keypoints
+    from mamma_kit.core.filled import load_masks
 
     out = {}
     pairs = []  # (fitted person, true person) per assigned, labelled track-frame
     per_cam = {}
     for cam in CAMS:
-        label, tids, seen = track_truth(ws, rig, cam, clocks)
-        kt = load_keypoints(ws, cam)
-        person = np.where(kt.valid, ident.person_frames(cam, tids, clocks[cam].to_ref(kt.frame_times)), -1)
+        label, tids, present, seen = track_truth(ws, rig, cam, clocks)
+        times = load_masks(ws, cam).frame_times
+        person = np.where(present, ident.person_frames(cam, tids, clocks[cam].to_ref(times)), -1)
         per_cam[cam] = (label, person, seen)
         m = (person >= 0) & (label >= 0)
         pairs += list(zip(person[m], label[m]))
@@ -252,7 +259,7 @@ def main() -> None:
     ap.add_argument("--people", type=int, default=None, help="init --people (default: not given)")
     ap.add_argument("--force", action="store_true", help="recompute every stage")
     ap.add_argument("--json", type=Path, help="also write the figures here")
-    ap.add_argument("--to", default="fit", help="last stage to run (match: identities only, no mouth figures)")
+    ap.add_argument("--to", default="place", help="last stage to run (match: identities only, no mouth figures)")
     a = ap.parse_args()
 
     from mamma_kit.core import log
@@ -287,7 +294,7 @@ def main() -> None:
         mt = MaskTracks.load(ws.mask_file(c))
         frames = [int(n) for n in mt.present.sum(axis=0)]
         print(f"{c}: {len(frames)} tracks kept, frames each {frames}")
-    ident = load_identities(ws)
+    ident = load_identities(ws, placed=True)
     views = {p: ident.views_of(p) for p in ident.person_ids}
     print(f"match: {len(views)} persons; views per person: " + "; ".join(f"{p}: {','.join(v)}" for p, v in views.items()))
 
@@ -298,7 +305,7 @@ def main() -> None:
     for c, r in idf.items():
         print(f"| {c} | {r['annotated_person_frames']} | {r['followed_right_pct']} | {r['assigned_track_frames']} | "
               f"{r['assigned_on_no_one_pct']} | {r['assigned_wrong_person_pct']} |")
-    if a.to != "fit":
+    if a.to not in ("fit", "place"):
         print(f"total {time.perf_counter() - t0:.0f} s")
         return
     times_g, truth = truth_mouths()

@@ -1,6 +1,6 @@
 """capture-to-smplx: the whole chain on one workspace, each stage cached by its inputs.
 
-    calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> export -> report
+    calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> place -> export -> report
 
 (sync runs after track and keypoints when its method is motion or auto: motion sync reads the
 people's keypoints.)
@@ -28,6 +28,7 @@ Stage options come from capture.toml, e.g.::
     [settings.match]       lam = 0.05  max_distance = 0.12  min_affinity = 0.25  window = 2.0
     [settings.fit]         stages = 4  cameras = 4 | camera_list = ["cam0", ...]  chunk = 120  floor = false
                            hand_points = false   (the hand model's points in the fit; default true)
+    [settings.place]       enabled = false   (the fitted bodies placed in the views that lost them; default true)
     [settings.export]      formats = ["gltf", "bvh", "trc", "c3d", "amass"]   (default ["gltf"]; [] writes none)
     [settings.report]      video = true
     [settings]             executor = "ray"   ray_address = "HOST:6379"   (core/executor.py; default local)
@@ -57,6 +58,7 @@ KNOWN = {
     "match": {"lam", "max_distance", "min_affinity", "window", "plots"},
     "fill": {"enabled"},
     "fit": {"stages", "cameras", "camera_list", "chunk", "floor", "threads", "body_model", "hand_points"},
+    "place": {"enabled"},
     "export": {"formats"},
     "report": {"video"},
 }
@@ -119,6 +121,10 @@ def _key_facts(stage: str, res: dict) -> str:
         if stage == "fill":
             return (f"{res.get('found', 0)} of {res.get('gaps', 0)} missing person-view-frames found"
                     if "found" in res else str(res.get("reason", "")))
+        if stage == "place":
+            return (f"{res.get('placed', 0)} hidden person-view-frames placed in {res.get('tracks', 0)} tracks, "
+                    f"{res.get('relabelled', 0)} track-frames given the person they show"
+                    if "placed" in res else str(res.get("reason", "")))
         if stage == "fit":
             rp = res.get("reprojection_px", {})
             med = [v["median"] for v in rp.values() if v.get("landmarks")]
@@ -227,6 +233,10 @@ def run_stage(ws: Workspace, stage: str, cap, force: bool = False, progress: boo
         res = fit_workspace(ws, opts.get("cameras"), opts.get("camera_list"), int(opts.get("stages", 4)),
                             opts.get("body_model"), cfg, command="mamma-kit capture-to-smplx", force=force,
                             threads=opts.get("threads"))
+    elif stage == "place":
+        from mamma_kit.placing.stage import run_place
+
+        res = run_place(ws, force=force, enabled=bool(opts.get("enabled", True)))
     elif stage == "export":
         from mamma_kit.export.stage import DEFAULT_FORMATS, run_export
 

@@ -66,17 +66,32 @@ def test_first_run_runs_every_stage_and_second_skips_all(reference):
     ws, run = reference
     st = {k: v["status"] for k, v in run["stages"].items()}
     assert st == {"calibrate": "provided", "sync": "ran", "track": "ran", "keypoints": "ran", "landmarks": "ran", "match": "ran",
-                  "fill": "skipped", "fit": "ran", "export": "ran", "report": "ran"}  # fill: nothing to read new tracks with
+                  "fill": "skipped", "fit": "ran", "place": "ran", "export": "ran", "report": "ran"}  # fill: nothing to read new tracks with
     assert (ws / "report" / "index.html").is_file() and (ws / "export" / "capture.glb").is_file()
     again = capture_to_smplx(ws, progress=False)
     assert {k: v["status"] for k, v in again["stages"].items()} == {
         "calibrate": "provided", "sync": "skipped", "track": "skipped", "keypoints": "skipped", "landmarks": "skipped", "match": "skipped",
-        "fill": "skipped", "fit": "skipped", "export": "skipped", "report": "skipped"}
+        "fill": "skipped", "fit": "skipped", "place": "skipped", "export": "skipped", "report": "skipped"}
     # the fit recovers the person (the numbers themselves are tested in test_fit_tiny.py)
     from mamma_kit.core.workspace import Workspace
     from mamma_kit.evaluation.fit import evaluate
 
     assert evaluate(Workspace(ws))["mpjpe_mm"] < 60
+
+
+def test_placed_tracks_are_read_while_made_from_the_fit_there(reference, tmp_path):
+    from mamma_kit.core.filled import load_identities, place_is_current
+    from mamma_kit.core.identities import read_identities
+    from mamma_kit.core.workspace import Workspace
+
+    ws = Workspace(_copy(reference[0], tmp_path / "ws"))
+    assert place_is_current(ws)
+    # two cameras: no view has two others to place a person from
+    assert read_identities(ws.place_dir / "identities.json").settings["place"]["person_view_frames"] == 0
+    f = ws.person_files()[0]
+    f.write_bytes(f.read_bytes() + b"\0")  # another fit: the placement is stale, the loaders leave it out
+    assert not place_is_current(ws)
+    assert load_identities(ws, placed=True).settings == load_identities(ws).settings
 
 
 def test_ctrl_c_mid_stage_resumes_and_ends_with_the_same_result(template, reference, tmp_path, monkeypatch):

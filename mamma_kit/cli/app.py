@@ -13,7 +13,7 @@ import sys
 from mamma_kit.cli import pipeline, demo  # noqa: F401  (init, capture-to-smplx, demo)
 from mamma_kit.cli import board, calibrate, sync, track, keypoints, landmarks, match, fill  # noqa: F401
 from mamma_kit.cli import synth, eval, train  # noqa: F401  (before fit: its pick-cameras is a tool)
-from mamma_kit.cli import fit, report, export  # noqa: F401
+from mamma_kit.cli import fit, place, report, export  # noqa: F401
 from mamma_kit.cli import doctor, calib, body  # noqa: F401
 from mamma_kit.cli.root import app
 from mamma_kit.core.errors import UserError

@@ -80,7 +80,7 @@ def init_cmd(
 def capture_to_smplx_cmd(
     workspace: Path = typer.Argument(..., help="Capture workspace (capture.toml; see `mamma-kit init`)."),
     from_stage: Optional[str] = typer.Option(None, "--from", help="First stage to run: calibrate, sync, track, "
-                                                                  "keypoints, landmarks, match, fill, fit, export or "
+                                                                  "keypoints, landmarks, match, fill, fit, place, export or "
                                                                   "report."),
     to_stage: Optional[str] = typer.Option(None, "--to", help="Last stage to run."),
     force: bool = typer.Option(False, "--force", help="Recompute every selected stage even if nothing changed."),
@@ -90,7 +90,7 @@ def capture_to_smplx_cmd(
     json_out: bool = JsonOpt,
     quiet: bool = QuietOpt,
 ) -> None:
-    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> export -> report, each
+    """Calibrate -> sync -> track -> keypoints -> landmarks -> match -> fill -> fit -> place -> export -> report, each
     stage skipped when its inputs are unchanged; an interrupted run resumes where it stopped. The
     export writes export/capture.glb (capture.toml \\[settings.export] formats picks others).
 

@@ -1,7 +1,10 @@
 """What the stages after `mamma-kit fill` read: each view's tracks with the ones the fill added, and
 the identities with them (fill/identities.json), when the fill was made from the match's current
 identities.json; otherwise the match's own (a match run again after the fill makes the fill stale
-until it runs again)."""
+until it runs again). With ``placed``, also the tracks `mamma-kit place` added from the fitted
+bodies (place/identities.json, place/masks), when they were made from those identities and the
+fit there is now: masks only, for what shows each view's people (the report, the identity score);
+the fit reads the tracks that have keypoints and landmarks."""
 
 from __future__ import annotations
 
@@ -29,8 +32,34 @@ def fill_is_current(ws: Workspace) -> bool:
     return read_identities(p).settings.get("fill", {}).get("from_identities") == identities_digest(ws.identities)
 
 
-def load_identities(ws: Workspace) -> Identities:
-    return read_identities(ws.fill_dir / FILL_IDENTITIES if fill_is_current(ws) else ws.identities)
+def identities_source(ws: Workspace) -> Path:
+    """The identities file the stages after the fill read: the fill's when current, else the match's."""
+    return ws.fill_dir / FILL_IDENTITIES if fill_is_current(ws) else ws.identities
+
+
+def fit_digest(ws: Workspace) -> str:
+    """One digest of the fit's results (smplx/person_*.npz)."""
+    h = hashlib.sha256()
+    for p in ws.person_files():
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def place_is_current(ws: Workspace) -> bool:
+    """Whether place/identities.json was made from the identities the fit read and the fit there is now."""
+    p = ws.place_dir / FILL_IDENTITIES
+    if not (p.is_file() and ws.identities.is_file()):
+        return False
+    made = read_identities(p).settings.get("place", {})
+    return made.get("from_identities") == identities_digest(identities_source(ws)) and \
+        made.get("from_fit") == fit_digest(ws)
+
+
+def load_identities(ws: Workspace, placed: bool = False) -> Identities:
+    if placed and place_is_current(ws):
+        return read_identities(ws.place_dir / FILL_IDENTITIES)
+    return read_identities(identities_source(ws))
 
 
 def _with_fill(ws: Workspace, kind: str, cam: str, base_path: Path, cls):
@@ -110,8 +139,12 @@ class CameraTracks:
         self.close()
 
 
-def load_masks(ws: Workspace, cam: str) -> MaskTracks:
-    return _with_fill(ws, "masks", cam, ws.mask_file(cam), MaskTracks)
+def load_masks(ws: Workspace, cam: str, placed: bool = False) -> MaskTracks:
+    mt = _with_fill(ws, "masks", cam, ws.mask_file(cam), MaskTracks)
+    extra = ws.place_dir / "masks" / f"{cam}.npz"
+    if placed and extra.is_file() and place_is_current(ws):
+        return append_tracks(mt, MaskTracks.load(extra))
+    return mt
 
 
 def load_keypoints(ws: Workspace, cam: str) -> KeypointTracks:

@@ -39,7 +39,7 @@ from typing import Any
 from mamma_kit.core.errors import UserError
 from mamma_kit.core.io import read_toml, write_toml
 
-STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fill", "fit", "export", "report")
+STAGES = ("calibrate", "sync", "track", "keypoints", "landmarks", "match", "fill", "fit", "place", "export", "report")
 
 
 ROTATIONS = (0, 90, 180, 270)
@@ -177,6 +177,12 @@ class Workspace:
         """`mamma-kit fill`'s tracks (fill/masks, fill/keypoints, fill/landmarks: only the tracks it
         added) and fill/identities.json (the match's identities with them)."""
         return self.root / "fill"
+
+    @property
+    def place_dir(self) -> Path:
+        """`mamma-kit place`'s tracks (place/masks: only the tracks it added, from the fitted bodies)
+        and place/identities.json (the fit's identities with them)."""
+        return self.root / "place"
 
     def fill_file(self, kind: str, cam: str) -> Path:
         """fill/<kind>/<cam>.npz, kind one of masks, keypoints, landmarks."""

@@ -107,7 +107,7 @@ def camera_pairing(ws: Workspace, cam: str, pred: MaskTracks, min_visible: float
 
 
 def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: float = 0.25,
-                 min_iou: float = 0.25, fill: bool = True) -> dict:
+                 min_iou: float = 0.25, fill: bool = True, placed: bool = False) -> dict:
     """Identities per frame against ground truth, as a user sees them. Per camera and frame, tracks
     and the gt persons the camera sees (at least ``min_visible`` of their surface landmarks visible)
     are paired one-to-one by mask IoU (Hungarian, IoU >= ``min_iou``: a track is on at most one
@@ -127,13 +127,13 @@ def frame_scores(ws: Workspace, ident: Identities, clocks: dict, min_visible: fl
     - ``missed_persons`` / ``extra_persons``: gt persons without a person id, person ids without a
       gt person. ``clocks``: camera -> ClockModel (camera time -> reference time) that match used.
     ``fill``: each view's tracks with those `mamma-kit fill` added (core.filled; pass the identities
-    that name them), or the tracker's alone.
+    that name them), or the tracker's alone; ``placed``: and those `mamma-kit place` added.
     """
     per_cam = {}
     for c in ident.cameras:
         if not (ws.mask_file(c).is_file() and (ws.gt_dir / "masks" / f"{c}.npz").is_file()):
             continue
-        pred = load_masks(ws, c) if fill else MaskTracks.load(ws.mask_file(c))
+        pred = load_masks(ws, c, placed) if fill else MaskTracks.load(ws.mask_file(c))
         e, tg, present_tk, seen_tp, on_tk = camera_pairing(ws, c, pred, min_visible, min_iou)
         pid_tk = ident.person_frames(c, pred.track_ids, clocks[c].to_ref(pred.frame_times))
         pid_tk = np.where(tg[:, None] >= 0, pid_tk[np.clip(tg, 0, None)], -1)  # (T_gt, K)

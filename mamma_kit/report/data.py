@@ -108,7 +108,7 @@ class ReportData:
     def mask_tracks(self) -> dict:
         from mamma_kit.core.filled import load_masks
 
-        return {c: load_masks(self.ws, c) for c in self.cameras if self.ws.mask_file(c).is_file()}
+        return {c: load_masks(self.ws, c, placed=True) for c in self.cameras if self.ws.mask_file(c).is_file()}
 
     @cached_property
     def identities(self):
@@ -116,7 +116,7 @@ class ReportData:
             return None
         from mamma_kit.core.filled import load_identities
 
-        return load_identities(self.ws)
+        return load_identities(self.ws, placed=True)
 
     def person_of_track(self, cam: str) -> dict[int, int]:
         """track id -> person id in one view (identities.json, else track id = person id)."""

@@ -14,7 +14,7 @@ def report_inputs(ws) -> list[Path]:
     """Every file the report reads: the stages' outputs and pictures, and gt/ when present."""
     root = ws.root
     files = [ws.capture_toml, ws.calibration, ws.timing, ws.identities]
-    for pattern in ("masks/*.npz", "landmarks/*.npz", "smplx/*.npz", "smplx/*.json", "report/calibration/*.png",
+    for pattern in ("masks/*.npz", "fill/**/*.npz", "fill/*.json", "place/**/*.npz", "place/*.json", "landmarks/*.npz", "smplx/*.npz", "smplx/*.json", "report/calibration/*.png",
                     "report/sync/*.png", "report/tracks/*.png", "keypoints/*.npz", "report/keypoints/*.png",
                     "report/match/*.png", "gt/**/*.npz", "gt/*.toml"):
         files += sorted(root.glob(pattern))
