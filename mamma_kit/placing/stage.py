@@ -23,6 +23,7 @@ They carry masks only: the fit reads the tracks the networks saw.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -220,7 +221,8 @@ class FittedBodies:
             if not ok.any():
                 continue
             uv = cam.project(r.joints[k[ok]])  # (n, 55, 2)
-            with np.errstate(invalid="ignore"):
+            with warnings.catch_warnings():  # a body wholly behind the camera: NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
                 out[ok, p] = np.concatenate([np.nanmin(uv, 1), np.nanmax(uv, 1)], 1)
         return out
 
