@@ -2,4 +2,4 @@
 cycle-consistent multi-view grouping (`mamma-kit match`)."""
 
 # the submodules other packages may import (tests/test_architecture.py holds them to it)
-__all__ = ["stage"]
+__all__ = ["pictures", "stage"]

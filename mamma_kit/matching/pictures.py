@@ -34,9 +34,9 @@ def picture_frame(mt: MaskTracks, person_tk: np.ndarray) -> int:
 
 
 def draw_identities(rgb_hw3: np.ndarray, mt: MaskTracks, t: int, person_k: np.ndarray, reasons: dict[int, str],
-                    camera: str) -> np.ndarray:
+                    camera: str, notes: dict[int, str] | None = None) -> np.ndarray:
     """Tracks present at frame t: tinted by person (person_k (K,) person id or -1) or outlined in grey
-    with their reason (track id -> reason)."""
+    with their reason (track id -> reason); ``notes``: track id -> a word after its person's label."""
     up = 2 if rgb_hw3.shape[0] < 500 else 1  # small videos drawn at twice their size, for legible labels
     img = cv2.resize(rgb_hw3, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR) if up > 1 else rgb_hw3.copy()
     H = img.shape[0]
@@ -54,6 +54,7 @@ def draw_identities(rgb_hw3: np.ndarray, mt: MaskTracks, t: int, person_k: np.nd
         cv2.drawContours(img, cnts, -1, tuple(int(c) for c in col), thick)
         x1, y1 = mt.boxes[t, k, :2] * up
         text = f"P{p}" if p >= 0 else f"{tid}: {short_reason(reasons.get(tid, 'not matched'))}"
+        text += f" {notes[tid]}" if notes and tid in notes else ""
         org = (int(max(0, x1)), int(max(12 * scale, y1 - 4 * scale)))
         cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.6 * scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
         cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.6 * scale, (255, 255, 255), thick, cv2.LINE_AA)

@@ -302,6 +302,30 @@ def write_placed(path, masks, runs: list, ident, pids: list[int]):
     return mt.save(path)
 
 
+def place_picture(ws, cam: str, masks, placed, ident, t_ref: np.ndarray):
+    """report/place/<cam>.png: the frame with the most placed tracks, every track tinted by its
+    person, the placed ones labelled so."""
+    import cv2
+
+    from mamma_kit.core.io import atomic_path
+    from mamma_kit.core.tracks import append_tracks
+    from mamma_kit.matching.pictures import draw_identities
+    from mamma_kit.video.reader import VideoReader
+
+    mt = append_tracks(masks, placed)
+    t = int(np.argmax(placed.present.sum(1)))
+    entry = ws.load_capture().cameras[cam]
+    _, rgb = VideoReader(entry.video, entry.rotation).frame_index(t)
+    person = ident.person_frames(cam, mt.track_ids, t_ref)[t]
+    img = draw_identities(rgb, mt, t, person, {}, cam, {int(i): "placed" for i in placed.track_ids})
+    path = ws.report_dir / "place" / f"{cam}.png"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, ".png") as tmp:
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"could not write {path}")
+    return path
+
+
 def run_place(ws, *, force: bool = False, enabled: bool = True) -> dict:
     """Place every camera's hidden people (module docstring); ``enabled`` False removes an earlier run."""
     import shutil
@@ -313,7 +337,7 @@ def run_place(ws, *, force: bool = False, enabled: bool = True) -> dict:
     from mamma_kit.core.identities import read_identities, write_identities
     from mamma_kit.core.smplxfile import read_smplx_result
     from mamma_kit.core.timingfile import read_timing
-    from mamma_kit.core.tracks import nearest_frames
+    from mamma_kit.core.tracks import MaskTracks, nearest_frames
     from mamma_kit.filling.stage import runs_of
     from mamma_kit.keypoints.estimator import PoseEstimator
     from mamma_kit.video import VideoReader
@@ -321,6 +345,7 @@ def run_place(ws, *, force: bool = False, enabled: bool = True) -> dict:
     t0 = time.perf_counter()
     if not enabled:
         shutil.rmtree(ws.place_dir, ignore_errors=True)
+        shutil.rmtree(ws.report_dir / "place", ignore_errors=True)
         return {"stage": "place", "skipped": True, "reason": "off (capture.toml [settings.place] enabled = false)"}
     for p, run in ((ws.identities, "match"), (ws.calibration, "calibrate")):
         if not p.is_file():
@@ -351,6 +376,7 @@ def run_place(ws, *, force: bool = False, enabled: bool = True) -> dict:
     views, person_tk = who_is_where(ident, masks, clocks, pids)
     est = None  # BlazePose, for the image check: loaded where a camera has someone to place
     shutil.rmtree(ws.place_dir, ignore_errors=True)
+    shutil.rmtree(ws.report_dir / "place", ignore_errors=True)
     outputs, per_camera = [], []
     for c in cams:
         t_ref = views[c][0]
@@ -372,7 +398,8 @@ def run_place(ws, *, force: bool = False, enabled: bool = True) -> dict:
         row = {"camera": c, "tried": int(want.sum()), "placed": sum(len(r) for _, r in runs), "tracks": len(runs),
                "relabelled": len(relabel)}
         if runs:
-            outputs.append(write_placed(ws.place_dir / "masks" / f"{c}.npz", masks[c], runs, ident, pids))
+            path = write_placed(ws.place_dir / "masks" / f"{c}.npz", masks[c], runs, ident, pids)
+            outputs += [path, place_picture(ws, c, masks[c], MaskTracks.load(path), ident, t_ref)]
         per_camera.append(row)
         log.info(f"place {c}: {row['placed']} person-frames placed of {row['tried']} tried, {row['tracks']} tracks; "
                  f"{row['relabelled']} track-frames given the person they show")

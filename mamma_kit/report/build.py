@@ -121,6 +121,9 @@ class _Builder:
             s.table(*t)
         self.add_camera_pngs(s, "match", lambda c: f"{c}: who is who in one frame: tracks tinted by person (P0, "
                                                    "P1, ...), tracks set aside outlined in grey with the reason.")
+        self.add_camera_pngs(s, "place", lambda c: f"{c}: the frame with the most people placed from the fitted "
+                                                   "bodies (`mamma-kit place`): their visible silhouettes, labelled "
+                                                   "'placed', beside the view's own tracks.")
         p = self.out / "match" / "affinities.png"
         if p.is_file():
             s.figure(self.rel(p), p, AFFINITIES_CAPTION)

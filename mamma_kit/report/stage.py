@@ -16,7 +16,7 @@ def report_inputs(ws) -> list[Path]:
     files = [ws.capture_toml, ws.calibration, ws.timing, ws.identities]
     for pattern in ("masks/*.npz", "fill/**/*.npz", "fill/*.json", "place/**/*.npz", "place/*.json", "landmarks/*.npz", "smplx/*.npz", "smplx/*.json", "report/calibration/*.png",
                     "report/sync/*.png", "report/tracks/*.png", "keypoints/*.npz", "report/keypoints/*.png",
-                    "report/match/*.png", "gt/**/*.npz", "gt/*.toml"):
+                    "report/match/*.png", "report/place/*.png", "gt/**/*.npz", "gt/*.toml"):
         files += sorted(root.glob(pattern))
     return [p for p in files if p.is_file()]
 
