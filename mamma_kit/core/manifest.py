@@ -127,6 +127,16 @@ class StageManifest:
         self.hasher.save()
         return Freshness(True, "inputs unchanged")
 
+    def reuse(self, state: Freshness, force: bool, output: Path) -> dict | None:
+        """The summary of the run that made ``output``, marked skipped (its own "skipped" is False),
+        when ``state`` (this manifest's check) is fresh, not ``force``d and ``output`` is there; else None."""
+        from mamma_kit.core import log
+
+        if not (state.fresh and not force and Path(output).is_file()):
+            return None
+        log.info(f"{self.stage}: up to date ({state.reason}); skipped (--force recomputes)")
+        return {**(self.load() or {}).get("summary", {}), "stage": self.stage, "skipped": True, "reason": state.reason}
+
     def record(self, inputs: Iterable[Path], settings: Any, outputs: Iterable[Path],
                summary: dict | None = None, seconds: float | None = None) -> Path:
         """Write the manifest after the stage's outputs are complete (atomically)."""

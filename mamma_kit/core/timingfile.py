@@ -47,6 +47,12 @@ def write_timing(path: str | Path, clocks: dict[str, ClockModel], reference: str
     return write_toml(path, data)
 
 
+def clocks_or_synced(path: str | Path, cameras: list[str]) -> dict[str, ClockModel]:
+    """Each camera's clock from the timing file at ``path``; without one the cameras are taken as
+    synchronised (identity clocks), as the match and the fit take them."""
+    return read_timing(path)[0] if Path(path).is_file() else {c: ClockModel() for c in cameras}
+
+
 def read_timing(path: str | Path) -> tuple[dict[str, ClockModel], dict]:
     """-> ({camera: ClockModel}, {'reference', 'method', 'diagnostics', 'cameras': per-camera diagnostics})."""
     path = Path(path)

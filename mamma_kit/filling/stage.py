@@ -95,10 +95,9 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
     import shutil
 
     from mamma_kit.core.calibfile import read_calibration
-    from mamma_kit.core.clock import ClockModel
     from mamma_kit.core.filled import FILL_IDENTITIES, identities_digest
     from mamma_kit.core.identities import read_identities, write_identities
-    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.core.timingfile import clocks_or_synced
     from mamma_kit.core.trackrows import TrackFile
     from mamma_kit.filling.gaps import person_points, persons_per_frame
     from mamma_kit.filling.look import look
@@ -125,14 +124,11 @@ def run_fill(ws, *, force: bool = False, enabled: bool = True) -> dict:
     inputs = [p for p in (ws.identities, ws.calibration, ws.timing) if p.is_file()] + [p for c in cams for p in
                                                            (ws.mask_file(c), ws.keypoints_file(c), cap.cameras[c].video)]
     manifest = StageManifest(ws.cache_dir, "fill", ws.root)
-    state = manifest.check(inputs, settings)
-    if state.fresh and not force and (ws.fill_dir / FILL_IDENTITIES).is_file():
-        log.info("fill: up to date (inputs unchanged); skipped (--force recomputes)")
-        # the summary of the run that made the files, marked skipped (its own "skipped" is False)
-        return {**manifest.load().get("summary", {}), "stage": "fill", "skipped": True, "reason": state.reason}
+    again = manifest.reuse(manifest.check(inputs, settings), force, ws.fill_dir / FILL_IDENTITIES)
+    if again is not None:
+        return again
     rig, _ = read_calibration(ws.calibration)
-    # without timing.toml the cameras are taken as synchronised, as the match and the fit take them
-    clocks = read_timing(ws.timing)[0] if ws.timing.is_file() else {c: ClockModel() for c in cams}
+    clocks = clocks_or_synced(ws.timing, cams)
     persons = ident.person_ids
     masks, per_cam, covered = {}, {}, {}
     for c in cams:

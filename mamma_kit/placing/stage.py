@@ -332,11 +332,10 @@ def run_place(ws, *, force: bool = False, enabled: bool = True) -> dict:
 
     from mamma_kit.body.model import load_body_model
     from mamma_kit.core.calibfile import read_calibration
-    from mamma_kit.core.clock import ClockModel
     from mamma_kit.core.filled import FILL_IDENTITIES, identities_source, fit_digest, identities_digest, load_masks
     from mamma_kit.core.identities import read_identities, write_identities
     from mamma_kit.core.smplxfile import read_smplx_result
-    from mamma_kit.core.timingfile import read_timing
+    from mamma_kit.core.timingfile import clocks_or_synced
     from mamma_kit.core.tracks import MaskTracks, nearest_frames
     from mamma_kit.filling.stage import runs_of
     from mamma_kit.keypoints.estimator import PoseEstimator
@@ -363,12 +362,11 @@ def run_place(ws, *, force: bool = False, enabled: bool = True) -> dict:
     settings = {"min_share": MIN_SHARE, "min_views": MIN_VIEWS, "scene_share": SCENE_SHARE, "min_support": MIN_SUPPORT,
                 "work_side": WORK_SIDE}
     manifest = StageManifest(ws.cache_dir, "place", ws.root)
-    state = manifest.check(inputs, settings)
-    if state.fresh and not force and (ws.place_dir / FILL_IDENTITIES).is_file():
-        log.info("place: up to date (inputs unchanged); skipped (--force recomputes)")
-        return {**manifest.load().get("summary", {}), "stage": "place", "skipped": True, "reason": state.reason}
+    again = manifest.reuse(manifest.check(inputs, settings), force, ws.place_dir / FILL_IDENTITIES)
+    if again is not None:
+        return again
     rig, _ = read_calibration(ws.calibration)
-    clocks = read_timing(ws.timing)[0] if ws.timing.is_file() else {c: ClockModel() for c in cams}
+    clocks = clocks_or_synced(ws.timing, cams)
     cams = [c for c in cams if c in rig]
     pids = [int(f.stem.split("_")[1]) for f in files]
     bodies = FittedBodies(load_body_model(cap.body_model), [read_smplx_result(f) for f in files])
