@@ -156,13 +156,15 @@ def follow(times_g: np.ndarray, truth_g3: np.ndarray, fits: dict) -> dict:
             "instants": int(len(times_g))}
 
 
-def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per frame and track of the camera, which true person it shows: 0, 1, or -1 for neither.
-    A track is on a person when its BlazePose nose lies within a quarter of its skeleton's height
-    of that person's projected MouthGT3D, or, where the nose is on neither (a head the mask left
-    out), when that person's mouth alone lies in the track's box grown by a fifth (a third
-    upwards); the track ids; and per frame and person whether the recording annotates that
-    person inside this camera's image (posGT), i.e. whether the person is to be seen there."""
+def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, ...]:
+    """Per frame and track of the camera (the placed ones too), which true person it shows: 0, 1,
+    or -1 for neither. A track is on a person when its BlazePose nose lies within a quarter of its
+    skeleton's height of that person's projected MouthGT3D, or, where the nose is on neither (a head
+    the mask left out) or the track has no keypoints (a placed one), when that person's mouth alone
+    lies in the track's box grown by a fifth (a third upwards). Also returned: the track ids, where
+    each track has data (T, K), per frame and person whether the recording annotates that person
+    inside this camera's image (posGT), i.e. whether the person is to be seen there, and each
+    frame's reference time."""
     import cv2
 
     from mamma_kit.core.filled import load_keypoints, load_masks
@@ -207,21 +209,18 @@ def track_truth(ws, rig, cam: str, clocks) -> tuple[np.ndarray, np.ndarray, np.n
         inside = {int(f) - 1 for f, x, y in pos[:, :3] if 0 < x < W and 0 < y < H}
         seen[:, j] = [k in inside for k in range(len(kt.frame_times))]
     seen &= near[:, None]
-    return label, mt.track_ids, present, seen
+    return label, mt.track_ids, present, seen, t_ref
 
 
 def identity_figures(ws, rig, clocks, ident) -> dict:
     """Per camera: the person-frames the recording annotates that some assigned track follows
     (with the right identity), and tracks or frames on no one."""
-    from mamma_kit.core.filled import load_masks
-
     out = {}
     pairs = []  # (fitted person, true person) per assigned, labelled track-frame
     per_cam = {}
     for cam in CAMS:
-        label, tids, present, seen = track_truth(ws, rig, cam, clocks)
-        times = load_masks(ws, cam).frame_times
-        person = np.where(present, ident.person_frames(cam, tids, clocks[cam].to_ref(times)), -1)
+        label, tids, present, seen, t_ref = track_truth(ws, rig, cam, clocks)
+        person = np.where(present, ident.person_frames(cam, tids, t_ref), -1)
         per_cam[cam] = (label, person, seen)
         m = (person >= 0) & (label >= 0)
         pairs += list(zip(person[m], label[m]))

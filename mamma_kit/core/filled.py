@@ -37,13 +37,21 @@ def identities_source(ws: Workspace) -> Path:
     return ws.fill_dir / FILL_IDENTITIES if fill_is_current(ws) else ws.identities
 
 
+_FIT_DIGESTS: dict[tuple, str] = {}
+
+
 def fit_digest(ws: Workspace) -> str:
-    """One digest of the fit's results (smplx/person_*.npz)."""
-    h = hashlib.sha256()
-    for p in ws.person_files():
-        h.update(p.name.encode())
-        h.update(p.read_bytes())
-    return h.hexdigest()
+    """One digest of the fit's results (smplx/person_*.npz); kept per the files' names, sizes and
+    times, as every camera's tracks ask for it in turn."""
+    files = ws.person_files()
+    key = tuple((str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files)
+    if key not in _FIT_DIGESTS:
+        h = hashlib.sha256()
+        for p in files:
+            h.update(p.name.encode())
+            h.update(p.read_bytes())
+        _FIT_DIGESTS[key] = h.hexdigest()
+    return _FIT_DIGESTS[key]
 
 
 def place_is_current(ws: Workspace) -> bool:

@@ -121,12 +121,12 @@ def decode_detections(raw_a12: np.ndarray, logits_a1: np.ndarray, min_score: flo
 
 
 def box_iou(a_n4: np.ndarray, b_m4: np.ndarray) -> np.ndarray:
-    """(N, M) IoU of x1 y1 x2 y2 boxes."""
-    lt = np.maximum(a_n4[:, None, :2], b_m4[None, :, :2])
-    rb = np.minimum(a_n4[:, None, 2:], b_m4[None, :, 2:])
-    inter = np.prod(np.clip(rb - lt, 0, None), axis=2)
-    area = lambda b: np.prod(np.clip(b[:, 2:] - b[:, :2], 0, None), axis=1)  # noqa: E731
-    return inter / np.maximum(area(a_n4)[:, None] + area(b_m4)[None, :] - inter, 1e-12)
+    """(..., N, M) IoU of x1 y1 x2 y2 boxes (any leading dims shared by both); 0 where a box is NaN."""
+    lt = np.maximum(a_n4[..., :, None, :2], b_m4[..., None, :, :2])
+    rb = np.minimum(a_n4[..., :, None, 2:], b_m4[..., None, :, 2:])
+    inter = np.prod(np.clip(rb - lt, 0, None), axis=-1)
+    area = lambda b: np.prod(np.clip(b[..., 2:] - b[..., :2], 0, None), axis=-1)  # noqa: E731
+    return np.nan_to_num(inter / np.maximum(area(a_n4)[..., :, None] + area(b_m4)[..., None, :] - inter, 1e-12))
 
 
 def weighted_nms(boxes_n4: np.ndarray, kps_nk2: np.ndarray, scores_n: np.ndarray, iou: float = NMS_IOU):

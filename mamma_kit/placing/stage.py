@@ -64,31 +64,17 @@ class Placed:
 def followed(times_t: np.ndarray, has_tp: np.ndarray, query_q: np.ndarray, tol: float) -> np.ndarray:
     """(Q, P) whether a view follows each person within ``tol`` of each query time: ``has_tp``
     (T, P) whether its tracks show each person at its frames' reference times ``times_t``."""
-    out = np.zeros((len(query_q), has_tp.shape[1]), bool)
-    for p in range(has_tp.shape[1]):
-        t = times_t[has_tp[:, p]]
-        if not len(t):
-            continue
-        j = np.clip(np.searchsorted(t, query_q), 1, max(len(t) - 1, 1))
-        near = np.minimum(np.abs(t[j - 1] - query_q), np.abs(t[np.minimum(j, len(t) - 1)] - query_q))
-        out[:, p] = near <= tol
-    return out
+    from mamma_kit.core.tracks import nearest_frames
 
-
-def box_iou(a_n4: np.ndarray, b_m4: np.ndarray) -> np.ndarray:
-    """(..., N, M) IoU of boxes (x0, y0, x1, y1); 0 where either is NaN."""
-    w = np.minimum(a_n4[..., :, None, 2], b_m4[..., None, :, 2]) - np.maximum(a_n4[..., :, None, 0], b_m4[..., None, :, 0])
-    h = np.minimum(a_n4[..., :, None, 3], b_m4[..., None, :, 3]) - np.maximum(a_n4[..., :, None, 1], b_m4[..., None, :, 1])
-    with np.errstate(invalid="ignore"):
-        inter = np.where((w > 0) & (h > 0), w * h, 0.0)
-        area = lambda x: (x[..., 2] - x[..., 0]) * (x[..., 3] - x[..., 1])  # noqa: E731
-        union = area(a_n4)[..., :, None] + area(b_m4)[..., None, :] - inter
-        return np.nan_to_num(inter / union)
+    return np.stack([nearest_frames(query_q, times_t[has_tp[:, p]], tol) >= 0 for p in range(has_tp.shape[1])], 1) \
+        if has_tp.shape[1] else np.zeros((len(query_q), 0), bool)
 
 
 def doubtful(track_boxes_tk4: np.ndarray, person_tk: np.ndarray, body_boxes_tp4: np.ndarray) -> np.ndarray:
     """(T,) the frames where a track with a person lies nearer (box IoU) another fitted person's
     projected joints than its own person's: where a track may show someone else."""
+    from mamma_kit.keypoints.blazepose import box_iou
+
     iou = box_iou(track_boxes_tk4, body_boxes_tp4)  # (T, K, P)
     own = np.take_along_axis(iou, np.maximum(person_tk, 0)[..., None], -1)[..., 0]
     return ((person_tk >= 0) & (iou.max(-1) > own)).any(1)
@@ -117,10 +103,11 @@ def place_camera(cam, frames, masks, person_tk: np.ndarray, want_tp: np.ndarray,
     Returned: placements (Placed) and ``relabel`` ((frame, column, person index; -1 none)): a track
     whose mask a fitted person's visible silhouette fits (IoU >= SAME_BODY) while its own person's
     does not (< NOT_BODY) shows that person then (a tracker that handed the front person's body to
-    the hidden one's track for a frame), or no one where that person's own track is there too; a silhouette that the mask of a track without a person then
-    overlaps (NAME_IOU) names that track. Else a person to try is placed (a person's mask from the
-    tracker can hold the sliver of the one behind: that track is left as it is), where the image
-    shows a person if the bodies hide little of them (SCENE_SHARE, MIN_SUPPORT)."""
+    the hidden one's track for a frame), or no one where that person's own track is there too; a
+    silhouette that the mask of a track without a person then overlaps (NAME_IOU) names that track.
+    Else a person to try is placed (a person's mask from the tracker can hold the sliver of the one
+    behind: that track is left as it is), where the image shows a person if the bodies hide little
+    of them (SCENE_SHARE, MIN_SUPPORT)."""
     import cv2
 
     from mamma_kit.core.tracks import encode_mask
@@ -186,11 +173,10 @@ def person_support(est, img: np.ndarray, cam, verts: list[np.ndarray], masks_hw:
     res = est.landmarks(img, np.array(rois))
     out = []
     for n, m in enumerate(masks_hw):
-        prob, (x0, y0) = res.segmentation_of(n, (W, H))
-        person = np.zeros((H, W), bool)
-        person[y0:y0 + prob.shape[0], x0:x0 + prob.shape[1]] = prob > SEG_THRESHOLD
+        prob, (x0, y0) = res.segmentation_of(n, (W, H))  # over its box, inside the image
+        covered = (m[y0:y0 + prob.shape[0], x0:x0 + prob.shape[1]] & (prob > SEG_THRESHOLD)).sum()
         # the segmentation of a crop without a person is no evidence: the model's person flag says so
-        out.append(float((person & m).sum() / max(m.sum(), 1)) if res.score[n] >= MIN_POSE_FLAG else 0.0)
+        out.append(float(covered / max(m.sum(), 1)) if res.score[n] >= MIN_POSE_FLAG else 0.0)
     return out
 
 
@@ -203,20 +189,18 @@ class FittedBodies:
         self.period = [float(np.median(np.diff(r.frame_times))) if len(r.frame_times) > 1 else 1.0 for r in results]
         self._blocks: dict[int, tuple[int, np.ndarray]] = {}
 
-    def frame_at(self, p: int, t_ref: float) -> int:
-        """The fitted frame of person p at reference time t_ref, -1 if none within half a period."""
-        ft = self.results[p].frame_times
-        if not len(ft):
-            return -1
-        k = int(np.argmin(np.abs(ft - t_ref)))
-        return k if abs(ft[k] - t_ref) <= 0.5 * self.period[p] + 1e-6 else -1
+    def frames_at(self, p: int, times: np.ndarray) -> np.ndarray:
+        """(n,) the fitted frame of person p at each reference time, -1 where none within half a period."""
+        from mamma_kit.core.tracks import nearest_frames
+
+        return nearest_frames(np.atleast_1d(times), self.results[p].frame_times, 0.5 * self.period[p] + 1e-6)
 
     def boxes(self, cam, times: np.ndarray) -> np.ndarray:
         """(T, P, 4) each person's fitted joints' box (x0, y0, x1, y1) in camera ``cam`` at the
         reference ``times``; NaN where not fitted then or behind the camera."""
         out = np.full((len(times), len(self.results), 4), np.nan)
         for p, r in enumerate(self.results):
-            k = np.array([self.frame_at(p, float(t)) for t in times])
+            k = self.frames_at(p, times)
             ok = k >= 0
             if not ok.any():
                 continue
@@ -231,7 +215,7 @@ class FittedBodies:
 
         out = []
         for p, r in enumerate(self.results):
-            k = self.frame_at(p, t_ref)
+            k = int(self.frames_at(p, t_ref)[0])
             if k < 0:
                 out.append(None)
                 continue
